@@ -1,0 +1,179 @@
+/**
+ * @file matcher.hpp
+ * @brief Robust dense stereo matcher of Bernhardt, Abi-Nahed and Abugharbieh (2012).
+ *
+ * ZNCC over the search range with an adaptive square window (w_min, w_min+dw, ... <= w_max) and
+ * three confidence criteria: structure (stdev of the Laplacian, gamma), discrimination (gap between
+ * the two highest NCC peaks, delta) and left-right consistency (epsilon). Sub-pixel refinement by a
+ * parabola through the best peak (ours). Post-processing (isolated-outlier removal, 1-2 px hole
+ * filling) is configured by PostFilterParams and run by the matcher after matching.
+ * See ../shared/METHOD.md sections 2 and 3.
+ *
+ * Use:
+ * @code
+ *   endo_stereo::MatcherParams mp;            // defaults = the trustworthy preset
+ *   mp.min_disparity = 0; mp.max_disparity = 63;
+ *   endo_stereo::RobustMatcher matcher(mp, endo_stereo::PostFilterParams{});
+ *   endo_stereo::MatchResult result;
+ *   matcher.compute(left_gray, right_gray, result);          // full search
+ *   matcher.compute(left_gray, right_gray, result, &range);  // per-pixel search range
+ * @endcode
+ *
+ * ROS-free: depends on OpenCV only.
+ */
+#pragma once
+
+#include <array>
+#include <cstdint>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+namespace endo_stereo {
+
+/// Parameters of the matching stage. Defaults are the shipped "default" (trustworthy) preset.
+struct MatcherParams {
+  /// Smallest disparity searched, px (disparity = x_left - x_right). Any integer.
+  int min_disparity = 0;
+  /// Largest disparity searched, px, inclusive; must be >= min_disparity.
+  int max_disparity = 63;
+  /// Smallest window width, px; odd, >= 3.
+  int window_min_px = 7;
+  /// Window growth step, px; even, >= 2 (keeps widths odd).
+  int window_step_px = 4;
+  /// Largest window width allowed, px; >= window_min_px. Widths tried: min, min+step, ... <= max.
+  int window_max_px = 30;
+  /// Structure threshold: stdev of the 3x3 Laplacian over the window, intensities 0..255. >= 0.
+  double gamma_min = 0.5;
+  /// Least NCC gap between the best and the second-highest peak, [0, 2].
+  double delta_min = 0.1;
+  /// Left-right consistency tolerance |d_LR + d_RL| < epsilon, px, > 0.
+  double epsilon_px = 5.0;
+  /// Refine accepted disparities with a parabola through the NCC peak.
+  bool subpixel = true;
+  /// Worker threads; 0 = OpenCV's default. The output does not depend on this value.
+  int num_threads = 0;
+  // Ours, against window fattening at depth edges: see matcher.cpp and BENCHMARKS.md.
+  /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity
+  /// (0 = no limit). Units px.
+  int edge_window_max_px = 0;
+  /// Reject a pixel whose window straddles a disparity discontinuity larger than this, px
+  /// (0 = off).
+  double edge_disparity_jump_px = 0.0;
+
+  /// @return an empty string when valid, otherwise a message naming the bad field and its range.
+  std::string validate() const;
+};
+
+/// Parameters of the post-processing stage (METHOD.md section 3).
+struct PostFilterParams {
+  /// Remove isolated outliers.
+  bool remove_outliers = true;
+  /// Neighbourhood width for the outlier test (paper: Delta w = 5), odd, >= 3.
+  int outlier_window_px = 5;
+  /// Neighbours agree when their disparity differs by less than this (paper: Delta d = 4), px, > 0.
+  double outlier_disparity_tol_px = 4.0;
+  /// Remove a pixel when agreeing neighbours / window^2 < this (paper: mu = 0.4), [0, 1].
+  double outlier_min_share = 0.4;
+  /// Fill holes up to fill_max_hole_px wide with the median of surrounding valid disparities.
+  bool fill_holes = true;
+  /// Widest hole filled, px, in [1, 2] (METHOD.md: nothing larger is filled).
+  int fill_max_hole_px = 2;
+
+  /// @return an empty string when valid, otherwise a message naming the bad field and its range.
+  std::string validate() const;
+};
+
+/// Per-pixel outcome, stored in MatchResult::code (CV_8UC1).
+enum PixelCode : uint8_t {
+  kCodeNotSearched = 0,     ///< outside the matchable area (border, empty search range)
+  kCodeRejectStructure = 1, ///< last window tried failed the structure criterion (gamma)
+  kCodeRejectPeakGap = 2,   ///< last window tried failed the discrimination criterion (delta)
+  kCodeRejectLeftRight = 3, ///< last window tried failed the left-right consistency (epsilon)
+  kCodeRejectEdge = 4,      ///< rejected by our depth-edge (anti-fattening) measure
+  kCodeRejectOutlier = 5,   ///< accepted, then removed as an isolated outlier
+  kCodeNoPeak = 6,          ///< no local maximum inside the search range
+  kCodeFilled = 7,          ///< a 1-2 px hole filled by the median of its neighbours
+  kCodeAcceptedBase = 16,   ///< accepted at window index k: code = kCodeAcceptedBase + k,
+                            ///< window width = window_min_px + k * window_step_px
+};
+
+/// Number of distinct rejection codes counted in MatchStats (codes 0..kCodeFilled).
+constexpr int kNumRejectCodes = 8;
+
+/// Counters of one compute() call.
+struct MatchStats {
+  /// Pixels per rejection / fill code (index = PixelCode value, 0..kCodeFilled).
+  std::array<int64_t, kNumRejectCodes> rejected{};
+  /// Pixels accepted per window index (0 = window_min_px). Up to 16 window sizes.
+  std::array<int64_t, 16> accepted_per_window{};
+  int64_t valid_pixels = 0;   ///< pixels with a finite disparity in the output (incl. filled)
+  int64_t total_pixels = 0;   ///< width * height
+  int64_t prior_pixels = 0;   ///< pixels searched with a narrowed (per-pixel) range
+  double density() const { return total_pixels ? double(valid_pixels) / double(total_pixels) : 0.0; }
+  double match_ms = 0.0;      ///< wall time of matching, ms
+  double filter_ms = 0.0;     ///< wall time of post-processing, ms
+};
+
+/// Output of RobustMatcher::compute(). Buffers are reused between calls.
+struct MatchResult {
+  cv::Mat disparity;   ///< CV_32FC1, px, left view; NaN = invalid
+  cv::Mat code;        ///< CV_8UC1, PixelCode per pixel
+  cv::Mat confidence;  ///< CV_32FC1 in [0, 1]; 0 where invalid (the peak gap delta, clamped)
+  MatchStats stats;
+};
+
+/// Per-pixel search range: disparities lo(y,x) .. hi(y,x) inclusive, both CV_16SC1 of the image
+/// size. A pixel with lo > hi is not searched. Empty matrices = the params' full range.
+struct SearchRange {
+  cv::Mat lo;
+  cv::Mat hi;
+  bool empty() const { return lo.empty(); }
+};
+
+/**
+ * The robust matcher. Not thread-safe: one instance per thread (it keeps scratch buffers between
+ * frames and uses a worker pool internally). Output is identical for any num_threads.
+ */
+class RobustMatcher {
+ public:
+  /// @throws std::invalid_argument when params fail validate().
+  RobustMatcher(const MatcherParams& matcher_params, const PostFilterParams& filter_params);
+  ~RobustMatcher();
+  RobustMatcher(const RobustMatcher&) = delete;
+  RobustMatcher& operator=(const RobustMatcher&) = delete;
+
+  /// Replace the parameters. @throws std::invalid_argument when invalid (old ones kept).
+  void setParams(const MatcherParams& matcher_params, const PostFilterParams& filter_params);
+  const MatcherParams& matcherParams() const { return matcher_params_; }
+  const PostFilterParams& filterParams() const { return filter_params_; }
+
+  /**
+   * Match a rectified pair.
+   * @param left  rectified left image, CV_8UC1 (gray 0..255), at least 1x1.
+   * @param right rectified right image, same size and type.
+   * @param out   disparity, codes, confidence and stats (reallocated only on size change).
+   * @param range optional per-pixel search range (clamped to [min_disparity, max_disparity]).
+   * @throws std::invalid_argument on empty input, type or size mismatch (message names it).
+   */
+  void compute(const cv::Mat& left, const cv::Mat& right, MatchResult& out,
+               const SearchRange* range = nullptr);
+
+ private:
+  struct Impl;
+  MatcherParams matcher_params_;
+  PostFilterParams filter_params_;
+  Impl* impl_;
+};
+
+/// Isolated-outlier removal (METHOD.md section 3) in place on a CV_32FC1 disparity (NaN invalid);
+/// marks removed pixels kCodeRejectOutlier in @p code (CV_8UC1) when not empty.
+/// @return the number of pixels removed.
+int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
+
+/// Fill holes at most params.fill_max_hole_px wide (horizontally or vertically) with the median of
+/// the surrounding valid disparities; marks them kCodeFilled in @p code when not empty.
+/// @return the number of pixels filled.
+int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
+
+}  // namespace endo_stereo

@@ -1,0 +1,1 @@
+#include "endo_stereo/core/matcher.hpp"
