@@ -81,7 +81,12 @@ struct PipelineOutput {
   bool priors_used = false;    ///< this frame searched narrowed ranges
   bool priors_reset = false;   ///< the temporal state was reset before this frame (and why below)
   std::string reset_reason;
-  double preprocess_ms = 0.0, rectify_ms = 0.0, match_ms = 0.0, cloud_ms = 0.0, total_ms = 0.0;
+  TemporalPriorStats prior_stats;  ///< narrowed / full-range pixels, prior hits and misses
+  int64_t frame_index = 0;     ///< process() calls that succeeded before this one
+  /// Wall times of the stages, ms. match_ms includes post-filtering (see match.stats for the
+  /// split); temporal_ms covers priors, fusion and coverage; total_ms the whole call.
+  double preprocess_ms = 0.0, rectify_ms = 0.0, match_ms = 0.0, temporal_ms = 0.0,
+         cloud_ms = 0.0, total_ms = 0.0;
 };
 
 class Pipeline {
@@ -105,6 +110,12 @@ class Pipeline {
 
   /// Forget the temporal state (priors, fusion, coverage).
   void reset();
+
+  /// The temporal stage (coverage figures and colour image, fused state). Valid for the lifetime
+  /// of this object; read it between process() calls only.
+  const TemporalTracker& temporal() const;
+  /// The rectifier (quality, geometry, mapping between raw and rectified images). Same rules.
+  const StereoRectifier& rectifier() const;
 
  private:
   PipelineParams params_;

@@ -1,0 +1,291 @@
+/**
+ * @file temporal.hpp
+ * @brief Temporal smoothness over video (METHOD.md section 4): search-range priors from the
+ * previous frames, temporal fusion of recent valid disparities, and coverage over time (the
+ * paper's Fig. 6: per pixel the longest run of frames without an update).
+ *
+ * Bernhardt et al. (2012) use the disparities of one frame pair as priors for the next, so a pixel
+ * with a recent valid disparity searches only a narrow range around it. Ours on top of the paper:
+ * the narrowed range of a pixel spans the priors of a small neighbourhood (so image motion of a few
+ * pixels and depth edges stay inside it); a pixel whose narrowed search keeps failing falls back to
+ * the full range; all temporal state is forgotten when time goes back (a looping bag), after a long
+ * gap, or when the image size, the disparity range or the calibration changes. Priors never weaken
+ * the acceptance criteria: the matcher applies the same three criteria, only the range changes.
+ *
+ * Use (what Pipeline does per frame):
+ * @code
+ *   endo_stereo::TemporalTracker temporal(params.temporal);
+ *   // per frame:
+ *   endo_stereo::TemporalFrameInfo info{left.size(), stamp_s, calibration_generation,
+ *                                       mp.min_disparity, mp.max_disparity};
+ *   std::string reset_reason;
+ *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
+ *   matcher.compute(left, right, match, range);          // nullptr = full range
+ *   temporal.endFrame(match.disparity, want_fused, want_coverage);
+ *   // temporal.prior().stats(), temporal.fusion().disparity() / age(),
+ *   // temporal.coverage().longestRun(), temporal.coverage().stats(), coverage().colorImage()
+ * @endcode
+ *
+ * Thread safety: none of these classes is thread-safe; one instance per processing thread.
+ * ROS-free: OpenCV only.
+ */
+#pragma once
+
+#include <cstdint>
+#include <limits>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "endo_stereo/core/matcher.hpp"
+
+namespace endo_stereo {
+
+/// Parameters of the temporal stage. Defaults are the shipped preset.
+struct TemporalParams {
+  /// Use temporal search-range priors. Fusion and coverage are requested separately (they run
+  /// whether or not priors are used, so "--no-priors" runs can be compared on coverage too).
+  bool enabled = true;
+  /// Half-width of the narrowed search around a prior, px (issue 2: +-4). In [1, 64].
+  int prior_radius_px = 4;
+  /// The narrowed range of a pixel spans the priors found within this many pixels of it
+  /// (a (2k+1)^2 neighbourhood), so small image motion and newly uncovered neighbours of valid
+  /// pixels are covered. In [0, 16]; 0 = the pixel's own prior only.
+  int prior_neighbourhood_px = 2;
+  /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
+  /// In [1, 1000].
+  int max_prior_age_frames = 3;
+  /// After this many consecutive frames in which a pixel searched a narrowed range and got no
+  /// valid disparity, it searches the full range until it gets one again. In [1, 1000].
+  int max_prior_failures = 2;
+  /// Forget the temporal state when the stamp moves forward by more than this, s. > 0.
+  double max_gap_s = 0.5;
+  /// Fused output: keep a pixel's most recent valid disparity for at most this many frames
+  /// (0 = this frame only). In [0, 65534].
+  int fused_max_age_frames = 10;
+  /// Coverage figures: a pixel counts as "updated within N frames" when its longest run of
+  /// consecutive frames without a valid disparity is < N (every N consecutive frames hold an
+  /// update; paper: 10 frames at 25 fps). In [1, 65534].
+  int coverage_within_frames = 10;
+
+  /// @return an empty string when valid, otherwise a message naming the bad field and its range.
+  std::string validate() const;
+};
+
+/// What identifies a continuous stream for the temporal state.
+struct TemporalFrameInfo {
+  cv::Size size;                      ///< size of the (rectified) images matched
+  double stamp_s = 0.0;               ///< capture time, s; NaN = unknown (time checks skipped)
+  uint64_t calibration_generation = 0;  ///< bump whenever the calibration changes
+  int min_disparity = 0;              ///< matcher's full range, px, inclusive
+  int max_disparity = 63;
+};
+
+/**
+ * Decides whether the temporal state must be forgotten before a frame: time went back, a gap
+ * longer than max_gap_s, or a change of image size, disparity range or calibration generation.
+ */
+class TemporalResetDetector {
+ public:
+  explicit TemporalResetDetector(double max_gap_s = 0.5) : max_gap_s_(max_gap_s) {}
+  void setMaxGap(double max_gap_s) { max_gap_s_ = max_gap_s; }
+  /// Record @p info as the latest frame.
+  /// @return "" when the stream is continuous with the previous frame (or on the first frame),
+  ///         otherwise the reason (e.g. "time went back by 3.96 s").
+  std::string check(const TemporalFrameInfo& info);
+  /// Forget the previous frame (the next check() returns "").
+  void reset() { has_previous_ = false; }
+
+ private:
+  double max_gap_s_;
+  bool has_previous_ = false;
+  TemporalFrameInfo previous_;
+};
+
+/// Counters of the latest frame of a TemporalPrior.
+struct TemporalPriorStats {
+  int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
+  int64_t full_range_pixels = 0;  ///< pixels searching the full range (no prior, or fallback)
+  int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
+  int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
+  int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
+  double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
+};
+
+/**
+ * Search-range priors from the previous frames' valid disparities (METHOD.md section 4).
+ *
+ * Per pixel it keeps the most recent valid disparity, its age in frames and a count of
+ * consecutive failed narrowed searches. buildRange() gives pixel p the range
+ * [floor(min_N(p) - r), ceil(max_N(p) + r)], where min_N / max_N are the extreme priors within
+ * prior_neighbourhood_px of p (priors no older than max_prior_age_frames, of pixels that have not
+ * failed max_prior_failures times in a row), clamped to the full range; pixels with no such prior
+ * search the full range.
+ */
+class TemporalPrior {
+ public:
+  /// @throws std::invalid_argument when params fail validate().
+  explicit TemporalPrior(const TemporalParams& params = TemporalParams());
+  /// @throws std::invalid_argument when invalid (old ones kept). State is kept.
+  void setParams(const TemporalParams& params);
+  const TemporalParams& params() const { return params_; }
+
+  /// Forget all priors.
+  void reset();
+
+  /**
+   * Build the search range of the next frame.
+   * A change of size or full range against the stored state resets it first.
+   * @return true when at least one pixel got a narrowed range (pass &range to the matcher);
+   *         false when every pixel searches the full range (range cleared; pass nullptr).
+   */
+  bool buildRange(cv::Size size, int min_disparity, int max_disparity, SearchRange& range);
+
+  /**
+   * Record the frame's final disparity (CV_32FC1, NaN invalid, the size given to buildRange()).
+   * Call once after each buildRange(); also fills the hit/miss counters of stats().
+   * @throws std::invalid_argument on a type or size mismatch.
+   */
+  void update(const cv::Mat& disparity);
+
+  /// Counters of the latest buildRange() / update().
+  const TemporalPriorStats& stats() const { return stats_; }
+  /// Most recent valid disparity per pixel (CV_32FC1, NaN none), regardless of age.
+  const cv::Mat& lastDisparity() const { return last_disparity_; }
+  /// Frames since lastDisparity() was measured (CV_16UC1; 0 = the latest frame, 65535 = never).
+  const cv::Mat& priorAge() const { return age_; }
+
+ private:
+  TemporalParams params_;
+  cv::Size size_;
+  int min_disparity_ = 0, max_disparity_ = -1;
+  cv::Mat last_disparity_;  // CV_32FC1
+  cv::Mat age_;             // CV_16UC1
+  cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
+  cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed
+  cv::Mat lo_f_, hi_f_;     // scratch
+  TemporalPriorStats stats_;
+};
+
+/// Age value meaning "no value".
+constexpr uint16_t kAgeNone = std::numeric_limits<uint16_t>::max();
+
+/**
+ * Temporal fusion (optional output): per pixel the most recent valid disparity not older than
+ * fused_max_age_frames, with its age in frames, so a consumer can choose between "this frame
+ * only" (age 0) and "recent and trusted".
+ */
+class TemporalFusion {
+ public:
+  /// @param max_age_frames in [0, 65534].
+  explicit TemporalFusion(int max_age_frames = 10);
+  void setMaxAge(int max_age_frames);
+  void reset();
+  /// Fold in a frame's disparity (CV_32FC1, NaN invalid). A size change resets first.
+  void update(const cv::Mat& disparity);
+  /// CV_32FC1, px; NaN where no valid disparity within the max age.
+  const cv::Mat& disparity() const { return disparity_; }
+  /// CV_16UC1, frames since the fused value was measured (0 = this frame), kAgeNone where NaN.
+  const cv::Mat& age() const { return age_; }
+
+ private:
+  int max_age_frames_;
+  cv::Mat disparity_, age_;
+};
+
+/// Figures of a CoverageTracker.
+struct CoverageStats {
+  int frames = 0;                ///< frames folded in
+  int within_frames = 10;        ///< the N of "updated within N frames"
+  double central_share = 0.0;    ///< central-region pixels with longest run < N, [0, 1]
+  double overall_share = 0.0;    ///< all pixels with longest run < N, [0, 1]
+  double central_never = 0.0;    ///< central-region pixels never updated, [0, 1]
+  double overall_never = 0.0;    ///< all pixels never updated, [0, 1]
+  cv::Rect central_region;       ///< the middle half of the image by area
+};
+
+/**
+ * Coverage over time (the paper's Fig. 6): per pixel the longest run of consecutive frames
+ * without a valid disparity so far (a run still open counts, and so do the frames before the first
+ * update).
+ */
+class CoverageTracker {
+ public:
+  /// @param within_frames the N of "updated within N frames", in [1, 65534].
+  explicit CoverageTracker(int within_frames = 10);
+  void setWithinFrames(int within_frames);
+  void reset();
+  /// Fold in a frame's disparity (CV_32FC1, NaN invalid). A size change resets first.
+  void update(const cv::Mat& disparity);
+  /// CV_16UC1, longest run of frames without an update per pixel (saturates at 65535).
+  const cv::Mat& longestRun() const { return longest_; }
+  /// CV_16UC1, frames since the last update per pixel (the open run).
+  const cv::Mat& currentRun() const { return current_; }
+  int frames() const { return frames_; }
+  /// The figures (central region = centred rectangle with sides / sqrt(2), half the area).
+  CoverageStats stats() const;
+  /**
+   * Colour picture of longestRun() (BGR): 0 frames dark blue through green/yellow up to red at
+   * 2N frames and above; pixels never updated are black; the central region is outlined in white.
+   * Empty before the first update().
+   */
+  cv::Mat colorImage() const;
+  /// The middle half of an image of @p size by area (centred, sides scaled by 1/sqrt(2)).
+  static cv::Rect centralRegion(cv::Size size);
+
+ private:
+  int within_frames_;
+  int frames_ = 0;
+  cv::Mat current_, longest_;
+  cv::Mat ever_;  // CV_8UC1, 1 once updated
+};
+
+/**
+ * The temporal stage as the pipeline runs it: reset detection, priors, fusion and coverage
+ * behind two calls per frame (beginFrame() before matching, endFrame() after).
+ */
+class TemporalTracker {
+ public:
+  /// @throws std::invalid_argument when params fail validate().
+  explicit TemporalTracker(const TemporalParams& params = TemporalParams());
+  /// @throws std::invalid_argument when invalid (old ones kept). State is kept.
+  void setParams(const TemporalParams& params);
+  const TemporalParams& params() const { return params_; }
+
+  /// Forget priors, fusion and coverage.
+  void reset();
+
+  /**
+   * Before matching a frame. Resets all state when the stream is not continuous (reason in
+   * @p reset_reason, "" otherwise).
+   * @return the per-pixel range to pass to RobustMatcher::compute(), or nullptr for the full
+   *         range (priors disabled, first frame, just reset, or no valid prior anywhere).
+   *         The pointer stays valid until the next beginFrame().
+   */
+  const SearchRange* beginFrame(const TemporalFrameInfo& info, std::string* reset_reason = nullptr);
+
+  /**
+   * After matching, with the frame's final disparity (CV_32FC1, NaN invalid).
+   * @param fuse           update the fused disparity / age
+   * @param track_coverage update the coverage tracker
+   */
+  void endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage);
+
+  const TemporalPrior& prior() const { return prior_; }
+  const TemporalFusion& fusion() const { return fusion_; }
+  const CoverageTracker& coverage() const { return coverage_; }
+  /// Whether the range returned by the latest beginFrame() was non-null.
+  bool priorsUsed() const { return priors_used_; }
+
+ private:
+  TemporalParams params_;
+  TemporalResetDetector detector_;
+  TemporalPrior prior_;
+  TemporalFusion fusion_;
+  CoverageTracker coverage_;
+  SearchRange range_;
+  bool priors_used_ = false;
+  bool frame_open_ = false;
+};
+
+}  // namespace endo_stereo

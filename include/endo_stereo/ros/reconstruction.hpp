@@ -1,0 +1,191 @@
+/**
+ * @file reconstruction.hpp
+ * @brief The ROS side of endo_stereo: synchronise a stereo pair, run the core Pipeline, publish
+ * disparity, points2 and the optional outputs, with diagnostics.
+ *
+ * Topics (relative to the node handle given; remap as usual):
+ * - In, by RectifyParams::mode: calibrated: `left/image_raw`, `right/image_raw`,
+ *   `left/camera_info`, `right/camera_info`; pass_through (already rectified): `left/image_rect`,
+ *   `right/image_rect` and the two camera_info (used for f and T; optional when
+ *   rectify.focal_px and rectify.baseline_m are set); uncalibrated: the two image_raw only.
+ *   Images come through image_transport (`~image_transport`), paired by ExactTime or
+ *   ApproximateTime synchronisation (`~approximate_sync`, `~sync_tolerance_s`); camera_info is
+ *   taken as the latest one received per side, so a missing camera_info is reported instead of
+ *   silently stalling a four-way synchroniser.
+ * - Out: `disparity` (stereo_msgs/DisparityImage), `points2` (sensor_msgs/PointCloud2,
+ *   organized), `confidence` (32FC1, [0, 1]), `disparity_fused` (DisparityImage), `coverage`
+ *   (16UC1, longest run of frames without an update), `left/image_rect_color` (bgr8),
+ *   `right/image_rect` (mono8), and /diagnostics.
+ *
+ * Behaviour:
+ * - Lazy: the inputs are subscribed only while some output has a subscriber.
+ * - Bounded: one processing thread takes the newest pair from a one-pair slot; a pair overwritten
+ *   in the slot before it was processed is counted as dropped. Nothing queues without limit.
+ * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
+ *   problem, counted as rejected, and the next good pair is processed.
+ * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
+ *   two frames.
+ *
+ * Thread safety: setPipelineParams(), pipelineParams() and counters() may be called from any
+ * thread; the class owns one processing thread and ROS callbacks run on the caller's callback
+ * queues.
+ */
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <cstdint>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <optional>
+#include <string>
+#include <thread>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <image_transport/image_transport.h>
+#include <image_transport/subscriber_filter.h>
+#include <message_filters/sync_policies/approximate_time.h>
+#include <message_filters/sync_policies/exact_time.h>
+#include <message_filters/synchronizer.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <tf2_ros/buffer.h>
+#include <tf2_ros/transform_listener.h>
+
+#include "endo_stereo/core/pipeline.hpp"
+#include "endo_stereo/ros/ros_params.hpp"
+
+namespace endo_stereo {
+
+/// Running totals since start (all counters monotonic).
+struct ReconstructionCounters {
+  int64_t left_images = 0;      ///< left images received
+  int64_t right_images = 0;     ///< right images received
+  int64_t pairs_received = 0;   ///< pairs formed by the synchroniser
+  int64_t pairs_processed = 0;  ///< pairs processed and published
+  int64_t pairs_dropped = 0;    ///< pairs replaced by a newer pair before processing (overload)
+  int64_t pairs_rejected = 0;   ///< pairs refused (bad input, pipeline error, out of order)
+  int64_t restarts = 0;         ///< stream restarts (time jumped back more than restart_jump_back_s)
+  int64_t tf_failures = 0;      ///< clouds not published for lack of the target_frame transform
+};
+
+class Reconstruction {
+ public:
+  /**
+   * @param nh      namespace of the topics (the stereo namespace).
+   * @param pnh     private namespace (diagnostics, transport hints).
+   * @param name    name used in log messages (the nodelet's name).
+   * @throws std::invalid_argument when either params struct fails validate().
+   */
+  Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle& pnh, const std::string& name,
+                 const RosParams& ros_params, const PipelineParams& params);
+  ~Reconstruction();
+  Reconstruction(const Reconstruction&) = delete;
+  Reconstruction& operator=(const Reconstruction&) = delete;
+
+  /// Validate @p params and, when valid, use them from the next frame on.
+  /// @return "" when accepted, else the validation message (current parameters kept).
+  /// A change of rectify.mode is refused here (it changes the input topics): restart the nodelet.
+  std::string setPipelineParams(const PipelineParams& params);
+  /// The parameters in use (or pending for the next frame).
+  PipelineParams pipelineParams() const;
+  const RosParams& rosParams() const { return ros_params_; }
+  ReconstructionCounters counters() const;
+  /// Whether the inputs are currently subscribed (lazy subscription).
+  bool inputsSubscribed() const;
+
+ private:
+  struct Pair {
+    sensor_msgs::ImageConstPtr left, right;
+    sensor_msgs::CameraInfoConstPtr left_info, right_info;
+    ros::WallTime arrival;
+  };
+  struct Published;  // outputs converted for publishing (reconstruction.cpp)
+
+  void connectCb();
+  void subscribeInputs();
+  void unsubscribeInputs();
+  void imageCb(bool left, const sensor_msgs::ImageConstPtr& msg);
+  void pairCb(const sensor_msgs::ImageConstPtr& left, const sensor_msgs::ImageConstPtr& right);
+  void infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg);
+  void workerLoop();
+  void processPair(const Pair& pair);
+  bool checkPair(const Pair& pair, std::string* error);
+  void publishOutputs(const Pair& pair, const PipelineOutput& out);
+  void reject(const std::string& what, const std::string& error);
+  void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
+  bool needsCameraInfo() const;
+  bool usesCameraInfo() const;
+
+  ros::NodeHandle nh_, pnh_;
+  std::string name_;
+  const RosParams ros_params_;
+  RectifyMode mode_;  // fixed at construction (decides the input topics)
+
+  // --- Inputs (guarded by connect_mutex_ for (un)subscription).
+  image_transport::ImageTransport it_;
+  image_transport::SubscriberFilter left_sub_, right_sub_;
+  ros::Subscriber left_info_sub_, right_info_sub_;
+  using ExactPolicy =
+      message_filters::sync_policies::ExactTime<sensor_msgs::Image, sensor_msgs::Image>;
+  using ApproxPolicy =
+      message_filters::sync_policies::ApproximateTime<sensor_msgs::Image, sensor_msgs::Image>;
+  std::unique_ptr<message_filters::Synchronizer<ExactPolicy>> exact_sync_;
+  std::unique_ptr<message_filters::Synchronizer<ApproxPolicy>> approx_sync_;
+  mutable std::mutex connect_mutex_;
+  bool subscribed_ = false;
+
+  // --- Outputs.
+  ros::Publisher pub_disparity_, pub_points_, pub_fused_;
+  image_transport::Publisher pub_confidence_, pub_coverage_, pub_left_rect_, pub_right_rect_;
+
+  // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
+  mutable std::mutex info_mutex_;
+  sensor_msgs::CameraInfoConstPtr left_info_, right_info_;
+  ros::WallTime last_left_arrival_, last_right_arrival_, last_pair_arrival_;
+  ros::Time last_left_stamp_, last_right_stamp_;
+
+  // --- The one-pair slot between the callbacks and the processing thread.
+  std::mutex slot_mutex_;
+  std::condition_variable slot_cv_;
+  std::optional<Pair> slot_;
+  bool shutdown_ = false;
+  std::thread worker_;
+
+  // --- Parameters (params_mutex_): current and pending (swapped in between frames).
+  mutable std::mutex params_mutex_;
+  PipelineParams params_;
+  bool params_pending_ = false;
+
+  // --- Processing state (worker thread only).
+  std::unique_ptr<Pipeline> pipeline_;
+  PipelineOutput out_;
+  StereoCalibration calibration_;
+  bool has_calibration_ = false;
+  ros::Time last_stamp_;
+  bool warned_not_metric_ = false;
+
+  // --- Figures (stats_mutex_).
+  mutable std::mutex stats_mutex_;
+  ReconstructionCounters counters_;
+  std::deque<double> latencies_ms_;  // latest latencies, arrival -> published
+  double last_density_ = 0.0;
+  RectificationQuality last_quality_;
+  bool last_priors_used_ = false;
+  std::string last_error_;
+  ros::WallTime last_error_time_;
+  ReconstructionCounters diag_prev_;
+  ros::WallTime diag_prev_time_;
+
+  // --- tf2 (only with a target_frame).
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+
+  // --- Diagnostics.
+  diagnostic_updater::Updater updater_;
+  ros::WallTimer diag_timer_;
+};
+
+}  // namespace endo_stereo

@@ -1,0 +1,78 @@
+/**
+ * @file ros_params.hpp
+ * @brief The nodelet's own settings (RosParams) and the one path config/*.yaml -> ROS parameters
+ * -> core structs (DESIGN.md "Parameters").
+ *
+ * Pipeline parameters live under the node's private namespace with the keys of params_io.hpp,
+ * `section.field` written as `~section/field` (`~matcher/delta_min`), which is what
+ * `<rosparam command="load" file="config/default.yaml"/>` produces from a preset. A YAML preset
+ * can also be named by `~config_file` (loaded first, then the individual parameters on top).
+ * The nodelet's own settings are `~<name>` (`~queue_size`, `~approximate_sync`, DESIGN.md); a
+ * preset's `ros:` section (`~ros/<name>`) is read too, with `~<name>` taking precedence.
+ *
+ * Thread safety: the functions are reentrant; they read the parameter server only.
+ */
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include <ros/node_handle.h>
+
+#include "endo_stereo/core/pipeline.hpp"
+
+namespace endo_stereo {
+
+/// Settings of the ROS layer (not pipeline parameters). Defaults in the struct.
+struct RosParams {
+  /// Subscriber and synchroniser queue length, messages, in [1, 100]. Bounds memory: a late
+  /// image is dropped by the synchroniser, never queued without limit.
+  int queue_size = 5;
+  /// Pair images by ApproximateTime (true) or ExactTime (false) synchronisation.
+  bool approximate_sync = false;
+  /// ApproximateTime only: largest stamp difference accepted within a pair, s, in (0, 1].
+  double sync_tolerance_s = 0.01;
+  /// image_transport transport of the inputs ("raw", "compressed", ...).
+  std::string image_transport = "raw";
+  /// Publish points2 in this frame (tf2 lookup at the pair's stamp); "" = the left rectified
+  /// optical frame.
+  std::string target_frame;
+  /// Longest wait for the target_frame transform, s, in [0, 10].
+  double tf_timeout_s = 0.05;
+  /// Frame of the outputs when the input has none (uncalibrated input, empty frame_id); also
+  /// overrides the camera_info frame when not empty.
+  std::string frame_id;
+  /// Diagnostics period, s, in [0.05, 60].
+  double diagnostics_period_s = 1.0;
+  /// Report images of one side arriving without a partner after this long, s, in (0, 60].
+  double unpaired_timeout_s = 1.0;
+  /// A pair whose stamp is older than the last processed one by less than this is dropped as
+  /// out of order; a larger jump back (a looping bag, a restarted driver) restarts the stream.
+  /// s, in [0, 3600].
+  double restart_jump_back_s = 1.0;
+  /// Disparity resolution written to DisparityImage::delta_d when sub-pixel refinement is on, px,
+  /// in (0, 1]. With it off, delta_d is 1. See reconstruction.cpp for the measurement behind the
+  /// default.
+  double subpixel_delta_d = 0.1;
+
+  /// @return "" when valid, else a message naming the field and its accepted range.
+  std::string validate() const;
+};
+
+/**
+ * Fill @p params from the private namespace of @p pnh: `~config_file` (a YAML preset, loaded on
+ * top of what @p params holds), then every `~section/field` present. Unknown keys under a
+ * pipeline section (`~matcher/typo`) are errors, so a misspelt parameter is not ignored silently.
+ * @return "" on success, else a message naming the parameter; @p params unchanged on error.
+ * Does not call validate().
+ */
+std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams& params);
+
+/// Fill @p params from `~ros/<name>` then `~<name>`. @return "" or a message naming the parameter.
+std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params);
+
+/// Write @p params into the private namespace as `~section/field` (so `rosparam get` shows the
+/// parameters in use).
+void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params);
+
+}  // namespace endo_stereo

@@ -1,0 +1,433 @@
+// Temporal priors, fusion and coverage (METHOD.md section 4). See temporal.hpp.
+#include "endo_stereo/core/temporal.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include <opencv2/imgproc.hpp>
+
+namespace endo_stereo {
+
+namespace {
+
+std::string rangeMessage(const char* field, const std::string& range, double value) {
+  std::ostringstream os;
+  os << "temporal." << field << " must be in " << range << " (got " << value << ")";
+  return os.str();
+}
+
+// Sentinel of "no prior" in the min/max filtered images: far outside any disparity, but finite so
+// that arithmetic on it stays well defined.
+constexpr float kNoPriorLo = 1e9f;
+constexpr float kNoPriorHi = -1e9f;
+
+inline uint16_t saturatingIncrement(uint16_t v) { return v == kAgeNone ? v : uint16_t(v + 1); }
+
+void checkDisparity(const cv::Mat& disparity, const char* who) {
+  if (disparity.empty() || disparity.type() != CV_32FC1) {
+    throw std::invalid_argument(std::string(who) + ": disparity must be a non-empty CV_32FC1");
+  }
+}
+
+}  // namespace
+
+std::string TemporalParams::validate() const {
+  if (prior_radius_px < 1 || prior_radius_px > 64)
+    return rangeMessage("prior_radius_px", "[1, 64]", prior_radius_px);
+  if (prior_neighbourhood_px < 0 || prior_neighbourhood_px > 16)
+    return rangeMessage("prior_neighbourhood_px", "[0, 16]", prior_neighbourhood_px);
+  if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
+    return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
+  if (max_prior_failures < 1 || max_prior_failures > 1000)
+    return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
+  if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
+    return rangeMessage("max_gap_s", "(0, inf)", max_gap_s);
+  if (fused_max_age_frames < 0 || fused_max_age_frames > 65534)
+    return rangeMessage("fused_max_age_frames", "[0, 65534]", fused_max_age_frames);
+  if (coverage_within_frames < 1 || coverage_within_frames > 65534)
+    return rangeMessage("coverage_within_frames", "[1, 65534]", coverage_within_frames);
+  return {};
+}
+
+// ------------------------------------------------------------------------------------------------
+std::string TemporalResetDetector::check(const TemporalFrameInfo& info) {
+  std::ostringstream reason;
+  if (has_previous_) {
+    const TemporalFrameInfo& p = previous_;
+    if (info.size != p.size) {
+      reason << "image size changed from " << p.size.width << "x" << p.size.height << " to "
+             << info.size.width << "x" << info.size.height;
+    } else if (info.min_disparity != p.min_disparity || info.max_disparity != p.max_disparity) {
+      reason << "disparity range changed from [" << p.min_disparity << ", " << p.max_disparity
+             << "] to [" << info.min_disparity << ", " << info.max_disparity << "]";
+    } else if (info.calibration_generation != p.calibration_generation) {
+      reason << "calibration changed";
+    } else if (std::isfinite(info.stamp_s) && std::isfinite(p.stamp_s)) {
+      const double dt = info.stamp_s - p.stamp_s;
+      if (dt < 0.0) {
+        reason << "time went back by " << -dt << " s";
+      } else if (dt > max_gap_s_) {
+        reason << "gap of " << dt << " s > max_gap_s " << max_gap_s_;
+      }
+    }
+  }
+  previous_ = info;
+  has_previous_ = true;
+  return reason.str();
+}
+
+// ------------------------------------------------------------------------------------------------
+TemporalPrior::TemporalPrior(const TemporalParams& params) { setParams(params); }
+
+void TemporalPrior::setParams(const TemporalParams& params) {
+  const std::string error = params.validate();
+  if (!error.empty()) throw std::invalid_argument(error);
+  params_ = params;
+}
+
+void TemporalPrior::reset() {
+  size_ = cv::Size();
+  min_disparity_ = 0;
+  max_disparity_ = -1;
+  last_disparity_.release();
+  age_.release();
+  failures_.release();
+  narrowed_.release();
+  stats_ = TemporalPriorStats();
+}
+
+bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_disparity,
+                               SearchRange& range) {
+  stats_ = TemporalPriorStats();
+  if (size != size_ || min_disparity != min_disparity_ || max_disparity != max_disparity_ ||
+      last_disparity_.empty()) {
+    reset();
+    size_ = size;
+    min_disparity_ = min_disparity;
+    max_disparity_ = max_disparity;
+    last_disparity_.create(size, CV_32FC1);
+    last_disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
+    age_.create(size, CV_16UC1);
+    age_.setTo(kAgeNone);
+    failures_ = cv::Mat::zeros(size, CV_8UC1);
+  }
+  narrowed_.create(size, CV_8UC1);
+  narrowed_.setTo(0);
+  lo_f_.create(size, CV_32FC1);
+  hi_f_.create(size, CV_32FC1);
+
+  const int max_failures = params_.max_prior_failures;
+  const int max_age = params_.max_prior_age_frames;
+  int64_t usable = 0;
+  for (int y = 0; y < size.height; ++y) {
+    const float* d = last_disparity_.ptr<float>(y);
+    const uint16_t* age = age_.ptr<uint16_t>(y);
+    const uint8_t* fail = failures_.ptr<uint8_t>(y);
+    float* lo = lo_f_.ptr<float>(y);
+    float* hi = hi_f_.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x) {
+      const bool fresh = std::isfinite(d[x]) && age[x] < max_age;
+      if (fresh && fail[x] < max_failures) {
+        lo[x] = d[x];
+        hi[x] = d[x];
+        ++usable;
+      } else {
+        lo[x] = kNoPriorLo;
+        hi[x] = kNoPriorHi;
+        // A pixel with a fresh prior that was dropped for failing: it falls back.
+        if (fresh) ++stats_.fallback_pixels;
+      }
+    }
+  }
+  if (usable == 0) {
+    range.lo.release();
+    range.hi.release();
+    stats_.full_range_pixels = int64_t(size.area());
+    return false;
+  }
+
+  const int k = params_.prior_neighbourhood_px;
+  if (k > 0) {
+    // Min / max filters spread each prior to its neighbourhood; the default border values of
+    // erode / dilate (+inf / -inf) leave image borders neutral.
+    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * k + 1, 2 * k + 1));
+    cv::erode(lo_f_, lo_f_, kernel);
+    cv::dilate(hi_f_, hi_f_, kernel);
+  }
+
+  range.lo.create(size, CV_16SC1);
+  range.hi.create(size, CV_16SC1);
+  const float r = float(params_.prior_radius_px);
+  int64_t width_sum = 0;
+  for (int y = 0; y < size.height; ++y) {
+    const float* lo_f = lo_f_.ptr<float>(y);
+    const float* hi_f = hi_f_.ptr<float>(y);
+    int16_t* lo = range.lo.ptr<int16_t>(y);
+    int16_t* hi = range.hi.ptr<int16_t>(y);
+    uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
+    for (int x = 0; x < size.width; ++x) {
+      int a = min_disparity, b = max_disparity;
+      if (lo_f[x] < 0.5f * kNoPriorLo) {
+        a = std::max(min_disparity, int(std::floor(lo_f[x] - r)));
+        b = std::min(max_disparity, int(std::ceil(hi_f[x] + r)));
+        // A prior (sub-pixel) just outside the full range can leave nothing: search it all.
+        if (a > b) {
+          a = min_disparity;
+          b = max_disparity;
+        }
+      }
+      lo[x] = int16_t(a);
+      hi[x] = int16_t(b);
+      if (a > min_disparity || b < max_disparity) {
+        narrowed[x] = 1;
+        ++stats_.narrowed_pixels;
+        width_sum += b - a + 1;
+      } else {
+        ++stats_.full_range_pixels;
+      }
+    }
+  }
+  if (stats_.narrowed_pixels > 0) {
+    stats_.mean_narrowed_width_px = double(width_sum) / double(stats_.narrowed_pixels);
+  }
+  return stats_.narrowed_pixels > 0;
+}
+
+void TemporalPrior::update(const cv::Mat& disparity) {
+  checkDisparity(disparity, "TemporalPrior::update");
+  if (last_disparity_.empty()) {
+    // update() without a buildRange(): start the state at this size, full range unknown.
+    size_ = disparity.size();
+    last_disparity_.create(size_, CV_32FC1);
+    last_disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
+    age_.create(size_, CV_16UC1);
+    age_.setTo(kAgeNone);
+    failures_ = cv::Mat::zeros(size_, CV_8UC1);
+  }
+  if (disparity.size() != size_) {
+    throw std::invalid_argument("TemporalPrior::update: disparity size differs from the range's");
+  }
+  const bool have_narrowed = !narrowed_.empty() && narrowed_.size() == size_;
+  int64_t hits = 0, misses = 0;
+  for (int y = 0; y < size_.height; ++y) {
+    const float* in = disparity.ptr<float>(y);
+    float* d = last_disparity_.ptr<float>(y);
+    uint16_t* age = age_.ptr<uint16_t>(y);
+    uint8_t* fail = failures_.ptr<uint8_t>(y);
+    const uint8_t* narrowed = have_narrowed ? narrowed_.ptr<uint8_t>(y) : nullptr;
+    for (int x = 0; x < size_.width; ++x) {
+      const bool valid = std::isfinite(in[x]);
+      const bool was_narrowed = narrowed && narrowed[x];
+      if (valid) {
+        d[x] = in[x];
+        age[x] = 0;
+        fail[x] = 0;
+        hits += was_narrowed;
+      } else {
+        age[x] = saturatingIncrement(age[x]);
+        if (was_narrowed) {
+          ++misses;
+          if (fail[x] < 255) ++fail[x];
+        }
+        // A pixel that searched the full range and failed keeps its count, so a dropped prior
+        // stays dropped until the pixel is measured again.
+      }
+    }
+  }
+  stats_.prior_hits = hits;
+  stats_.prior_misses = misses;
+  if (have_narrowed) narrowed_.setTo(0);
+}
+
+// ------------------------------------------------------------------------------------------------
+TemporalFusion::TemporalFusion(int max_age_frames) { setMaxAge(max_age_frames); }
+
+void TemporalFusion::setMaxAge(int max_age_frames) {
+  if (max_age_frames < 0 || max_age_frames > 65534) {
+    throw std::invalid_argument(rangeMessage("fused_max_age_frames", "[0, 65534]", max_age_frames));
+  }
+  max_age_frames_ = max_age_frames;
+}
+
+void TemporalFusion::reset() {
+  disparity_.release();
+  age_.release();
+}
+
+void TemporalFusion::update(const cv::Mat& disparity) {
+  checkDisparity(disparity, "TemporalFusion::update");
+  if (disparity_.size() != disparity.size()) {
+    disparity_.create(disparity.size(), CV_32FC1);
+    disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
+    age_.create(disparity.size(), CV_16UC1);
+    age_.setTo(kAgeNone);
+  }
+  const uint16_t max_age = uint16_t(max_age_frames_);
+  for (int y = 0; y < disparity.rows; ++y) {
+    const float* in = disparity.ptr<float>(y);
+    float* d = disparity_.ptr<float>(y);
+    uint16_t* age = age_.ptr<uint16_t>(y);
+    for (int x = 0; x < disparity.cols; ++x) {
+      if (std::isfinite(in[x])) {
+        d[x] = in[x];
+        age[x] = 0;
+      } else if (age[x] != kAgeNone) {
+        age[x] = uint16_t(age[x] + 1);
+        if (age[x] > max_age) {
+          age[x] = kAgeNone;
+          d[x] = std::numeric_limits<float>::quiet_NaN();
+        }
+      }
+    }
+  }
+}
+
+// ------------------------------------------------------------------------------------------------
+CoverageTracker::CoverageTracker(int within_frames) { setWithinFrames(within_frames); }
+
+void CoverageTracker::setWithinFrames(int within_frames) {
+  if (within_frames < 1 || within_frames > 65534) {
+    throw std::invalid_argument(rangeMessage("coverage_within_frames", "[1, 65534]", within_frames));
+  }
+  within_frames_ = within_frames;
+}
+
+void CoverageTracker::reset() {
+  frames_ = 0;
+  current_.release();
+  longest_.release();
+  ever_.release();
+}
+
+void CoverageTracker::update(const cv::Mat& disparity) {
+  checkDisparity(disparity, "CoverageTracker::update");
+  if (current_.size() != disparity.size()) {
+    reset();
+    current_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
+    longest_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
+    ever_ = cv::Mat::zeros(disparity.size(), CV_8UC1);
+  }
+  for (int y = 0; y < disparity.rows; ++y) {
+    const float* in = disparity.ptr<float>(y);
+    uint16_t* cur = current_.ptr<uint16_t>(y);
+    uint16_t* lng = longest_.ptr<uint16_t>(y);
+    uint8_t* ever = ever_.ptr<uint8_t>(y);
+    for (int x = 0; x < disparity.cols; ++x) {
+      if (std::isfinite(in[x])) {
+        cur[x] = 0;
+        ever[x] = 1;
+      } else {
+        cur[x] = saturatingIncrement(cur[x]);
+        lng[x] = std::max(lng[x], cur[x]);
+      }
+    }
+  }
+  ++frames_;
+}
+
+cv::Rect CoverageTracker::centralRegion(cv::Size size) {
+  const double s = 1.0 / std::sqrt(2.0);
+  const int w = int(std::lround(size.width * s));
+  const int h = int(std::lround(size.height * s));
+  return cv::Rect((size.width - w) / 2, (size.height - h) / 2, w, h);
+}
+
+CoverageStats CoverageTracker::stats() const {
+  CoverageStats s;
+  s.frames = frames_;
+  s.within_frames = within_frames_;
+  if (longest_.empty()) return s;
+  s.central_region = centralRegion(longest_.size());
+  auto share = [&](const cv::Rect& roi, double* within, double* never) {
+    int64_t n_within = 0, n_never = 0;
+    for (int y = roi.y; y < roi.y + roi.height; ++y) {
+      const uint16_t* lng = longest_.ptr<uint16_t>(y);
+      const uint8_t* ever = ever_.ptr<uint8_t>(y);
+      for (int x = roi.x; x < roi.x + roi.width; ++x) {
+        n_within += lng[x] < within_frames_;
+        n_never += ever[x] == 0;
+      }
+    }
+    const double n = double(roi.area());
+    *within = n > 0 ? double(n_within) / n : 0.0;
+    *never = n > 0 ? double(n_never) / n : 0.0;
+  };
+  share(s.central_region, &s.central_share, &s.central_never);
+  share(cv::Rect(cv::Point(0, 0), longest_.size()), &s.overall_share, &s.overall_never);
+  return s;
+}
+
+cv::Mat CoverageTracker::colorImage() const {
+  if (longest_.empty()) return cv::Mat();
+  // Longest run mapped linearly onto 0..2N; at N the colour map is half way (green/yellow).
+  const double top = 2.0 * within_frames_;
+  cv::Mat scaled;
+  longest_.convertTo(scaled, CV_8UC1, 255.0 / top);  // saturates above 2N
+  cv::Mat color;
+  cv::applyColorMap(scaled, color, cv::COLORMAP_TURBO);
+  color.setTo(cv::Scalar::all(0), ever_ == 0);
+  cv::rectangle(color, centralRegion(longest_.size()), cv::Scalar::all(255), 1);
+  return color;
+}
+
+// ------------------------------------------------------------------------------------------------
+TemporalTracker::TemporalTracker(const TemporalParams& params)
+    : params_(params),
+      detector_(params.max_gap_s),
+      prior_(params),
+      fusion_(params.fused_max_age_frames),
+      coverage_(params.coverage_within_frames) {}
+
+void TemporalTracker::setParams(const TemporalParams& params) {
+  const std::string error = params.validate();
+  if (!error.empty()) throw std::invalid_argument(error);
+  params_ = params;
+  detector_.setMaxGap(params.max_gap_s);
+  prior_.setParams(params);
+  fusion_.setMaxAge(params.fused_max_age_frames);
+  coverage_.setWithinFrames(params.coverage_within_frames);
+  if (!params.enabled) prior_.reset();
+}
+
+void TemporalTracker::reset() {
+  detector_.reset();
+  prior_.reset();
+  fusion_.reset();
+  coverage_.reset();
+  range_.lo.release();
+  range_.hi.release();
+  priors_used_ = false;
+  frame_open_ = false;
+}
+
+const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
+                                               std::string* reset_reason) {
+  const std::string reason = detector_.check(info);
+  if (!reason.empty()) {
+    prior_.reset();
+    fusion_.reset();
+    coverage_.reset();
+  }
+  if (reset_reason) *reset_reason = reason;
+  frame_open_ = true;
+  priors_used_ = false;
+  if (!params_.enabled) {
+    range_.lo.release();
+    range_.hi.release();
+    return nullptr;
+  }
+  priors_used_ = prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_);
+  return priors_used_ ? &range_ : nullptr;
+}
+
+void TemporalTracker::endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage) {
+  checkDisparity(disparity, "TemporalTracker::endFrame");
+  if (params_.enabled && frame_open_) prior_.update(disparity);
+  if (fuse) fusion_.update(disparity);
+  if (track_coverage) coverage_.update(disparity);
+  frame_open_ = false;
+}
+
+}  // namespace endo_stereo

@@ -1,0 +1,2 @@
+// Uncalibrated rectification (homography and polar); implementation follows.
+#include "endo_stereo/core/rectification.hpp"

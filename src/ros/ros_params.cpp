@@ -1,0 +1,184 @@
+// ROS parameters -> core structs. See ros_params.hpp.
+//
+// Pipeline parameters go through params_io's setPipelineParam() as text, so the nodelet, the
+// YAML presets and the command-line tools share one list of keys, one parser and one set of
+// error messages.
+#include "endo_stereo/ros/ros_params.hpp"
+
+#include <cmath>
+#include <sstream>
+
+#include <XmlRpcValue.h>
+
+#include "endo_stereo/core/params_io.hpp"
+
+namespace endo_stereo {
+namespace {
+
+// A scalar parameter as the text params_io parses; "" in @p error when it is one.
+bool scalarToText(XmlRpc::XmlRpcValue& v, std::string* text, std::string* error) {
+  std::ostringstream s;
+  switch (v.getType()) {
+    case XmlRpc::XmlRpcValue::TypeBoolean:
+      *text = static_cast<bool>(v) ? "true" : "false";
+      return true;
+    case XmlRpc::XmlRpcValue::TypeInt:
+      *text = std::to_string(static_cast<int>(v));
+      return true;
+    case XmlRpc::XmlRpcValue::TypeDouble: {
+      s.precision(17);
+      s << static_cast<double>(v);
+      *text = s.str();
+      return true;
+    }
+    case XmlRpc::XmlRpcValue::TypeString:
+      *text = static_cast<std::string>(v);
+      return true;
+    default:
+      *error = "expected a scalar (bool, int, double or string)";
+      return false;
+  }
+}
+
+std::string typeError(const ros::NodeHandle& pnh, const std::string& name, const char* what) {
+  return "parameter " + pnh.resolveName(name) + ": expected " + what;
+}
+
+// Typed getters that report a wrong type instead of ignoring the value as NodeHandle::param does.
+std::string readParam(const ros::NodeHandle& pnh, const std::string& name, int* out) {
+  XmlRpc::XmlRpcValue v;
+  if (!pnh.getParam(name, v)) return {};
+  if (v.getType() != XmlRpc::XmlRpcValue::TypeInt) return typeError(pnh, name, "an integer");
+  *out = static_cast<int>(v);
+  return {};
+}
+
+std::string readParam(const ros::NodeHandle& pnh, const std::string& name, double* out) {
+  XmlRpc::XmlRpcValue v;
+  if (!pnh.getParam(name, v)) return {};
+  if (v.getType() == XmlRpc::XmlRpcValue::TypeInt) {
+    *out = static_cast<int>(v);
+  } else if (v.getType() == XmlRpc::XmlRpcValue::TypeDouble) {
+    *out = static_cast<double>(v);
+  } else {
+    return typeError(pnh, name, "a number");
+  }
+  return {};
+}
+
+std::string readParam(const ros::NodeHandle& pnh, const std::string& name, bool* out) {
+  XmlRpc::XmlRpcValue v;
+  if (!pnh.getParam(name, v)) return {};
+  if (v.getType() != XmlRpc::XmlRpcValue::TypeBoolean) return typeError(pnh, name, "a boolean");
+  *out = static_cast<bool>(v);
+  return {};
+}
+
+std::string readParam(const ros::NodeHandle& pnh, const std::string& name, std::string* out) {
+  XmlRpc::XmlRpcValue v;
+  if (!pnh.getParam(name, v)) return {};
+  if (v.getType() != XmlRpc::XmlRpcValue::TypeString) return typeError(pnh, name, "a string");
+  *out = static_cast<std::string>(v);
+  return {};
+}
+
+template <typename T>
+std::string readBoth(const ros::NodeHandle& pnh, const std::string& name, T* out) {
+  std::string e = readParam(pnh, "ros/" + name, out);
+  if (!e.empty()) return e;
+  return readParam(pnh, name, out);
+}
+
+}  // namespace
+
+std::string RosParams::validate() const {
+  std::ostringstream m;
+  if (queue_size < 1 || queue_size > 100) {
+    m << "queue_size: must be in [1, 100], got " << queue_size;
+  } else if (!(sync_tolerance_s > 0.0 && sync_tolerance_s <= 1.0)) {
+    m << "sync_tolerance_s: must be in (0, 1] s, got " << sync_tolerance_s;
+  } else if (image_transport.empty()) {
+    m << "image_transport: must not be empty (e.g. raw, compressed)";
+  } else if (!(tf_timeout_s >= 0.0 && tf_timeout_s <= 10.0)) {
+    m << "tf_timeout_s: must be in [0, 10] s, got " << tf_timeout_s;
+  } else if (!(diagnostics_period_s >= 0.05 && diagnostics_period_s <= 60.0)) {
+    m << "diagnostics_period_s: must be in [0.05, 60] s, got " << diagnostics_period_s;
+  } else if (!(unpaired_timeout_s > 0.0 && unpaired_timeout_s <= 60.0)) {
+    m << "unpaired_timeout_s: must be in (0, 60] s, got " << unpaired_timeout_s;
+  } else if (!(restart_jump_back_s >= 0.0 && restart_jump_back_s <= 3600.0)) {
+    m << "restart_jump_back_s: must be in [0, 3600] s, got " << restart_jump_back_s;
+  } else if (!(subpixel_delta_d > 0.0 && subpixel_delta_d <= 1.0)) {
+    m << "subpixel_delta_d: must be in (0, 1] px, got " << subpixel_delta_d;
+  }
+  return m.str();
+}
+
+std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams& params) {
+  PipelineParams p = params;
+  std::string config_file;
+  std::string e = readParam(pnh, "config_file", &config_file);
+  if (!e.empty()) return e;
+  if (!config_file.empty()) {
+    e = loadPipelineParams(config_file, p);
+    if (!e.empty()) return "parameter " + pnh.resolveName("config_file") + ": " + e;
+  }
+  for (const std::string& section : pipelineParamSections()) {
+    XmlRpc::XmlRpcValue tree;
+    if (!pnh.getParam(section, tree)) continue;
+    if (tree.getType() != XmlRpc::XmlRpcValue::TypeStruct) {
+      return "parameter " + pnh.resolveName(section) + ": expected a map of " + section +
+             " parameters";
+    }
+    for (auto it = tree.begin(); it != tree.end(); ++it) {
+      std::string text;
+      std::string why;
+      const std::string ros_name = pnh.resolveName(section + "/" + it->first);
+      if (!scalarToText(it->second, &text, &why)) return "parameter " + ros_name + ": " + why;
+      why = setPipelineParam(p, section + "." + it->first, text);
+      if (!why.empty()) return "parameter " + ros_name + ": " + why;
+    }
+  }
+  params = p;
+  return {};
+}
+
+std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params) {
+  RosParams p = params;
+  std::string e;
+  if (e.empty()) e = readBoth(pnh, "queue_size", &p.queue_size);
+  if (e.empty()) e = readBoth(pnh, "approximate_sync", &p.approximate_sync);
+  if (e.empty()) e = readBoth(pnh, "sync_tolerance_s", &p.sync_tolerance_s);
+  if (e.empty()) e = readBoth(pnh, "image_transport", &p.image_transport);
+  if (e.empty()) e = readBoth(pnh, "target_frame", &p.target_frame);
+  if (e.empty()) e = readBoth(pnh, "tf_timeout_s", &p.tf_timeout_s);
+  if (e.empty()) e = readBoth(pnh, "frame_id", &p.frame_id);
+  if (e.empty()) e = readBoth(pnh, "diagnostics_period_s", &p.diagnostics_period_s);
+  if (e.empty()) e = readBoth(pnh, "unpaired_timeout_s", &p.unpaired_timeout_s);
+  if (e.empty()) e = readBoth(pnh, "restart_jump_back_s", &p.restart_jump_back_s);
+  if (e.empty()) e = readBoth(pnh, "subpixel_delta_d", &p.subpixel_delta_d);
+  if (!e.empty()) return e;
+  params = p;
+  return {};
+}
+
+void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params) {
+  for (const ParamInfo& info : listPipelineParams(params)) {
+    const std::string name = info.section + "/" + info.field;
+    switch (info.type) {
+      case ParamType::kBool:
+        pnh.setParam(name, info.value == "true");
+        break;
+      case ParamType::kInt:
+        pnh.setParam(name, std::stoi(info.value));
+        break;
+      case ParamType::kDouble:
+        pnh.setParam(name, std::stod(info.value));
+        break;
+      case ParamType::kString:
+        pnh.setParam(name, info.value);
+        break;
+    }
+  }
+}
+
+}  // namespace endo_stereo

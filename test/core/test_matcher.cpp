@@ -1,0 +1,346 @@
+// The robust matcher (METHOD.md section 2) on synthetic scenes with exact ground truth.
+#include <cmath>
+#include <cstring>
+#include <limits>
+#include <vector>
+
+#include <gtest/gtest.h>
+#include <opencv2/core/utility.hpp>
+
+#include "endo_stereo/core/evaluation.hpp"
+#include "endo_stereo/core/matcher.hpp"
+#include "synthetic_scene.hpp"
+
+namespace endo_stereo {
+namespace {
+
+PostFilterParams noFilter() {
+  PostFilterParams p;
+  p.remove_outliers = false;
+  p.fill_holes = false;
+  return p;
+}
+
+MatcherParams range(int lo, int hi) {
+  MatcherParams p;
+  p.min_disparity = lo;
+  p.max_disparity = hi;
+  return p;
+}
+
+class MatcherTest : public ::testing::Test {
+ protected:
+  void SetUp() override { cv::setNumThreads(1); }  // pinned; one test checks 2 threads itself
+  void TearDown() override { cv::setNumThreads(-1); }
+};
+
+int countCode(const cv::Mat& code, const cv::Mat& mask, int c) {
+  return cv::countNonZero((code == c) & mask);
+}
+
+cv::Mat acceptedMask(const cv::Mat& code) { return code >= static_cast<int>(kCodeAcceptedBase); }
+
+TEST_F(MatcherTest, RecoversAConstantShiftOfRandomTexture) {
+  SyntheticSceneParams sp;
+  sp.base_disparity_px = 12;
+  const SyntheticScene s = makeSyntheticScene(sp);
+  RobustMatcher m(range(0, 31), noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  const DisparityScore score = scoreDisparity(r.disparity, s.disparity, s.occluded == 0);
+  // Rich texture, no noise: nearly every visible pixel away from the border must be matched, and
+  // matched right (sub-pixel interpolation of the texture gives < 0.1 px error).
+  EXPECT_GT(score.density, 0.9);
+  EXPECT_EQ(score.n_bad1, 0);
+  EXPECT_LT(score.mean_abs_error, 0.1);
+  EXPECT_GT(r.stats.accepted_per_window[0], r.stats.total_pixels / 2);
+}
+
+TEST_F(MatcherTest, SubpixelErrorSmallOnASlantedPlane) {
+  SyntheticSceneParams sp;
+  sp.base_disparity_px = 15.3;
+  sp.slope_x = 0.04;
+  sp.slope_y = -0.02;
+  sp.noise_stdev = 1.0;
+  const SyntheticScene s = makeSyntheticScene(sp);
+  RobustMatcher m(range(0, 31), noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  const DisparityScore score = scoreDisparity(r.disparity, s.disparity, s.occluded == 0);
+  // METHOD.md: a point cloud needs sub-pixel disparities; the issue asks < 0.2 px on a smooth
+  // slanted surface. The parabola's known bias (pixel locking) is about 0.1 px at worst.
+  EXPECT_GT(score.density, 0.8);
+  EXPECT_LT(score.mean_abs_error, 0.2);
+  EXPECT_EQ(score.n_bad1, 0);
+  // Without the parabola the error is that of rounding (about 0.25 px mean): the test can tell.
+  MatcherParams p = range(0, 31);
+  p.subpixel = false;
+  m.setParams(p, noFilter());
+  m.compute(s.left, s.right, r);
+  EXPECT_GT(scoreDisparity(r.disparity, s.disparity, s.occluded == 0).mean_abs_error, 0.2);
+}
+
+TEST_F(MatcherTest, SubpixelErrorSmallOnACurvedSurface) {
+  SyntheticSceneParams sp;
+  sp.base_disparity_px = 20;
+  sp.curvature = -0.0002;  // paraboloid: 20 px in the centre, about 12 px in the corners
+  const SyntheticScene s = makeSyntheticScene(sp);
+  RobustMatcher m(range(0, 31), noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  const DisparityScore score = scoreDisparity(r.disparity, s.disparity, s.occluded == 0);
+  EXPECT_GT(score.density, 0.8);
+  EXPECT_LT(score.mean_abs_error, 0.2);
+}
+
+TEST_F(MatcherTest, RejectsTexturelessPatchByStructure) {
+  SyntheticSceneParams sp;
+  sp.textureless = cv::Rect(100, 60, 120, 120);
+  const SyntheticScene s = makeSyntheticScene(sp);
+  MatcherParams p = range(0, 31);
+  p.gamma_min = 0.5;
+  RobustMatcher m(p, noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  // Deep inside the patch (farther than w_max / 2 from its edge) no window sees texture.
+  const cv::Rect inner(100 + 16, 60 + 16, 120 - 32, 120 - 32);
+  const cv::Mat all(inner.size(), CV_8UC1, cv::Scalar(255));
+  EXPECT_EQ(cv::countNonZero(acceptedMask(r.code(inner))), 0);
+  EXPECT_EQ(countCode(r.code(inner), all, kCodeRejectStructure), inner.area());
+  // The textured rest is kept.
+  const DisparityScore outside = scoreDisparity(r.disparity(cv::Rect(0, 0, 90, 240)),
+                                                s.disparity(cv::Rect(0, 0, 90, 240)),
+                                                s.occluded(cv::Rect(0, 0, 90, 240)) == 0);
+  EXPECT_GT(outside.density, 0.8);
+}
+
+TEST_F(MatcherTest, RejectsRepetitivePatternByPeakGap) {
+  SyntheticSceneParams sp;
+  sp.repetitive = cv::Rect(80, 40, 160, 160);
+  sp.repetitive_period_px = 8;  // peaks every 8 px inside a 32-disparity search range
+  const SyntheticScene s = makeSyntheticScene(sp);
+  RobustMatcher m(range(0, 31), noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  const cv::Rect inner(80 + 16, 40 + 16, 160 - 32, 160 - 32);
+  const cv::Mat all(inner.size(), CV_8UC1, cv::Scalar(255));
+  EXPECT_EQ(cv::countNonZero(acceptedMask(r.code(inner))), 0);
+  EXPECT_EQ(countCode(r.code(inner), all, kCodeRejectPeakGap), inner.area());
+  // With the peak gap off (delta_min = 0, any gap passes... except exact ties) the same pixels
+  // would be accepted at one of the equal peaks: the criterion is what rejects them.
+  MatcherParams p = range(0, 31);
+  p.delta_min = 0.0;
+  p.epsilon_px = 100;
+  m.setParams(p, noFilter());
+  m.compute(s.left, s.right, r);
+  EXPECT_GT(cv::countNonZero(acceptedMask(r.code(inner))), inner.area() / 2);
+}
+
+TEST_F(MatcherTest, RejectsOccludedPixelsByLeftRightConsistency) {
+  SyntheticSceneParams sp;
+  sp.base_disparity_px = 6;
+  sp.occluder = cv::Rect(140, 50, 80, 140);
+  sp.occluder_disparity_px = 26;  // a 20 px wide strip left of it is hidden from the right view
+  const SyntheticScene s = makeSyntheticScene(sp);
+  MatcherParams p = range(0, 31);
+  p.window_max_px = p.window_min_px;  // one window: no fattening from large windows here
+  p.epsilon_px = 1.0;
+  RobustMatcher m(p, noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r);
+  // The hidden strip, away from the occluder's edge by more than the window half width.
+  const cv::Rect strip(140 - 20 + 4, 60, 12, 120);
+  const cv::Mat all(strip.size(), CV_8UC1, cv::Scalar(255));
+  ASSERT_EQ(cv::countNonZero(s.occluded(strip)), strip.area());
+  const int lr = countCode(r.code(strip), all, kCodeRejectLeftRight);
+  const int accepted = cv::countNonZero(acceptedMask(r.code(strip)));
+  // A hidden pixel has no true match; the few that find a consistent wrong one are random hits.
+  EXPECT_GT(lr, strip.area() / 2);
+  EXPECT_LT(accepted, strip.area() / 10);
+  // With the check off (epsilon huge) most of them are accepted, wrongly.
+  p.epsilon_px = 1000;
+  m.setParams(p, noFilter());
+  m.compute(s.left, s.right, r);
+  EXPECT_GT(cv::countNonZero(acceptedMask(r.code(strip))), strip.area() / 2);
+}
+
+TEST_F(MatcherTest, GrowsWindowsWhereTextureIsPoor) {
+  SyntheticSceneParams rich;
+  rich.noise_stdev = 2.0;
+  SyntheticSceneParams poor = rich;
+  poor.texture_stdev = 3.0;  // faint texture under the same noise
+  poor.texture_blur_px = 2.0;
+  auto meanWindow = [](const MatchResult& r) {
+    double sum = 0, n = 0;
+    for (int k = 0; k < 16; ++k) {
+      sum += k * static_cast<double>(r.stats.accepted_per_window[k]);
+      n += static_cast<double>(r.stats.accepted_per_window[k]);
+    }
+    return n > 0 ? sum / n : -1.0;
+  };
+  RobustMatcher m(range(0, 31), noFilter());
+  MatchResult r;
+  m.compute(makeSyntheticScene(rich).left, makeSyntheticScene(rich).right, r);
+  const double rich_mean = meanWindow(r);
+  const SyntheticScene ps = makeSyntheticScene(poor);
+  m.compute(ps.left, ps.right, r);
+  const double poor_mean = meanWindow(r);
+  EXPECT_LT(rich_mean, 0.2);
+  EXPECT_GT(poor_mean, rich_mean + 1.0);
+  // And what the larger windows accept is right.
+  EXPECT_LT(scoreDisparity(r.disparity, ps.disparity, ps.occluded == 0).bad1, 0.01);
+}
+
+TEST_F(MatcherTest, RespectsThePerPixelSearchRange) {
+  SyntheticSceneParams sp;
+  sp.base_disparity_px = 14;
+  sp.slope_x = 0.03;
+  const SyntheticScene s = makeSyntheticScene(sp);
+  SearchRange rg;
+  rg.lo.create(s.left.size(), CV_16SC1);
+  rg.hi.create(s.left.size(), CV_16SC1);
+  for (int y = 0; y < s.left.rows; ++y) {
+    for (int x = 0; x < s.left.cols; ++x) {
+      const int g = static_cast<int>(std::lround(s.disparity.at<float>(y, x)));
+      // Left half: +-4 around the truth. Right half: a range 8..12 px off the truth.
+      const int c = x < s.left.cols / 2 ? g : g + 10;
+      rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(c - 4 + (x < s.left.cols / 2 ? 0 : 2));
+      rg.hi.at<int16_t>(y, x) = static_cast<int16_t>(c + 4 - (x < s.left.cols / 2 ? 0 : 2));
+    }
+  }
+  // A band of rows is not searched at all.
+  rg.lo.rowRange(100, 110).setTo(5);
+  rg.hi.rowRange(100, 110).setTo(4);
+  RobustMatcher m(range(0, 47), noFilter());
+  MatchResult r;
+  m.compute(s.left, s.right, r, &rg);
+  int outside = 0, accepted_left = 0, accepted_right = 0;
+  for (int y = 0; y < s.left.rows; ++y) {
+    for (int x = 0; x < s.left.cols; ++x) {
+      const float d = r.disparity.at<float>(y, x);
+      if (std::isnan(d)) continue;
+      if (d < rg.lo.at<int16_t>(y, x) - 0.5f || d > rg.hi.at<int16_t>(y, x) + 0.5f) ++outside;
+      (x < s.left.cols / 2 ? accepted_left : accepted_right)++;
+    }
+  }
+  EXPECT_EQ(outside, 0);
+  EXPECT_EQ(cv::countNonZero(r.code.rowRange(100, 110) != kCodeNotSearched), 0);
+  EXPECT_EQ(cv::countNonZero(acceptedMask(r.code.rowRange(100, 110))), 0);
+  EXPECT_GT(accepted_left, s.left.total() / 2 * 0.8);
+  // A range that misses the truth yields no confident match (a peak inside it is not a local
+  // maximum of a profile that keeps rising or falling towards the truth).
+  EXPECT_LT(accepted_right, s.left.total() / 2 / 50);
+  EXPECT_GT(r.stats.prior_pixels, 0);
+  // Full search gives the same matches where the range holds the truth... within the parabola.
+  const DisparityScore with_range = scoreDisparity(r.disparity.colRange(0, 160),
+                                                   s.disparity.colRange(0, 160));
+  EXPECT_EQ(with_range.n_bad1, 0);
+}
+
+TEST_F(MatcherTest, SameOutputForOneAndTwoThreads) {
+  SyntheticSceneParams sp;
+  sp.width = 256;
+  sp.height = 200;
+  sp.base_disparity_px = 10;
+  sp.slope_x = 0.02;
+  sp.noise_stdev = 3.0;
+  sp.occluder = cv::Rect(90, 40, 60, 100);
+  sp.occluder_disparity_px = 24;
+  sp.textureless = cv::Rect(180, 120, 40, 40);
+  const SyntheticScene s = makeSyntheticScene(sp);
+  MatchResult r1, r2;
+  for (int threads : {1, 2}) {
+    MatcherParams p = range(0, 31);
+    p.num_threads = threads;
+    RobustMatcher m(p, PostFilterParams{});
+    m.compute(s.left, s.right, threads == 1 ? r1 : r2);
+  }
+  auto sameBits = [](const cv::Mat& a, const cv::Mat& b) {
+    if (a.size() != b.size() || a.type() != b.type()) return false;
+    for (int y = 0; y < a.rows; ++y) {
+      if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
+    }
+    return true;
+  };
+  EXPECT_TRUE(sameBits(r1.disparity, r2.disparity));
+  EXPECT_TRUE(sameBits(r1.code, r2.code));
+  EXPECT_TRUE(sameBits(r1.confidence, r2.confidence));
+  EXPECT_GT(r1.stats.valid_pixels, r1.stats.total_pixels / 2);
+}
+
+TEST_F(MatcherTest, ValidateNamesTheBadField) {
+  struct Case {
+    const char* field;
+    void (*set)(MatcherParams&);
+  };
+  const Case cases[] = {
+      {"max_disparity", [](MatcherParams& p) { p.max_disparity = p.min_disparity - 1; }},
+      {"window_min_px", [](MatcherParams& p) { p.window_min_px = 6; }},
+      {"window_min_px", [](MatcherParams& p) { p.window_min_px = 1; }},
+      {"window_step_px", [](MatcherParams& p) { p.window_step_px = 3; }},
+      {"window_max_px", [](MatcherParams& p) { p.window_max_px = 5; }},
+      {"window_max_px", [](MatcherParams& p) { p.window_max_px = 40; }},
+      {"gamma_min", [](MatcherParams& p) { p.gamma_min = -1; }},
+      {"delta_min", [](MatcherParams& p) { p.delta_min = 2.5; }},
+      {"epsilon_px", [](MatcherParams& p) { p.epsilon_px = 0; }},
+      {"num_threads", [](MatcherParams& p) { p.num_threads = -2; }},
+      {"edge_window_max_px", [](MatcherParams& p) { p.edge_window_max_px = -1; }},
+      {"edge_disparity_jump_px", [](MatcherParams& p) { p.edge_disparity_jump_px = -1; }},
+  };
+  EXPECT_EQ(MatcherParams{}.validate(), "");
+  for (const Case& c : cases) {
+    MatcherParams p;
+    c.set(p);
+    const std::string msg = p.validate();
+    EXPECT_NE(msg.find(c.field), std::string::npos) << c.field << ": '" << msg << "'";
+    try {
+      RobustMatcher m(p, PostFilterParams{});
+      ADD_FAILURE() << "constructor accepted bad " << c.field;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find(c.field), std::string::npos) << e.what();
+    }
+  }
+  RobustMatcher m(MatcherParams{}, PostFilterParams{});
+  MatcherParams bad;
+  bad.delta_min = -1;
+  EXPECT_THROW(m.setParams(bad, PostFilterParams{}), std::invalid_argument);
+  EXPECT_EQ(m.matcherParams().delta_min, MatcherParams{}.delta_min);  // old ones kept
+}
+
+TEST_F(MatcherTest, RejectsBadInputsNamingThem) {
+  RobustMatcher m(MatcherParams{}, PostFilterParams{});
+  MatchResult r;
+  const cv::Mat ok(40, 50, CV_8UC1, cv::Scalar(0));
+  auto message = [&](const cv::Mat& l, const cv::Mat& rr, const SearchRange* rg) -> std::string {
+    try {
+      m.compute(l, rr, r, rg);
+    } catch (const std::invalid_argument& e) {
+      return e.what();
+    }
+    return "";
+  };
+  EXPECT_NE(message(cv::Mat(), ok, nullptr).find("left"), std::string::npos);
+  EXPECT_NE(message(ok, cv::Mat(), nullptr).find("right"), std::string::npos);
+  EXPECT_NE(message(cv::Mat(40, 50, CV_8UC3), ok, nullptr).find("left"), std::string::npos);
+  EXPECT_NE(message(ok, cv::Mat(40, 50, CV_16UC1), nullptr).find("right"), std::string::npos);
+  EXPECT_NE(message(ok, cv::Mat(41, 50, CV_8UC1), nullptr).find("size"), std::string::npos);
+  SearchRange rg;
+  rg.lo = cv::Mat(40, 50, CV_32SC1);
+  rg.hi = cv::Mat(40, 50, CV_16SC1);
+  EXPECT_NE(message(ok, ok, &rg).find("range"), std::string::npos);
+  rg.lo = cv::Mat(40, 49, CV_16SC1);
+  EXPECT_NE(message(ok, ok, &rg).find("range"), std::string::npos);
+  // A tiny image is valid input: nothing is matched, nothing crashes.
+  const cv::Mat tiny(1, 1, CV_8UC1, cv::Scalar(7));
+  EXPECT_EQ(message(tiny, tiny, nullptr), "");
+  EXPECT_EQ(r.stats.valid_pixels, 0);
+  EXPECT_EQ(r.code.at<uint8_t>(0, 0), kCodeNotSearched);
+}
+
+}  // namespace
+}  // namespace endo_stereo
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}

@@ -1,0 +1,175 @@
+// Isolated-outlier removal and small-hole filling (METHOD.md section 3) on hand-made maps.
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "endo_stereo/core/matcher.hpp"
+
+namespace endo_stereo {
+namespace {
+
+const float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+cv::Mat filled(int rows, int cols, float v) { return cv::Mat(rows, cols, CV_32FC1, cv::Scalar(v)); }
+
+PostFilterParams paperFilter() {
+  PostFilterParams p;  // paper: 5 x 5 window, 4 px, mu 0.4, holes up to 2 px
+  p.outlier_window_px = 5;
+  p.outlier_disparity_tol_px = 4.0;
+  p.outlier_min_share = 0.4;
+  p.fill_max_hole_px = 2;
+  return p;
+}
+
+TEST(IsolatedOutliers, RemovesALonePixelAndKeepsItsSupportedNeighbours) {
+  cv::Mat d = filled(9, 9, kNaN);
+  d.at<float>(4, 4) = 10.f;  // no matched neighbour at all
+  cv::Mat code(9, 9, CV_8UC1, cv::Scalar(kCodeAcceptedBase));
+  EXPECT_EQ(removeIsolatedOutliers(d, code, paperFilter()), 1);
+  EXPECT_TRUE(std::isnan(d.at<float>(4, 4)));
+  EXPECT_EQ(code.at<uint8_t>(4, 4), kCodeRejectOutlier);
+}
+
+TEST(IsolatedOutliers, RemovesAPixelDifferingFromAUniformField) {
+  cv::Mat d = filled(9, 9, 10.f);
+  d.at<float>(4, 4) = 30.f;
+  cv::Mat code;
+  EXPECT_EQ(removeIsolatedOutliers(d, code, paperFilter()), 1);
+  EXPECT_TRUE(std::isnan(d.at<float>(4, 4)));
+  EXPECT_EQ(d.at<float>(4, 3), 10.f);
+}
+
+TEST(IsolatedOutliers, ThresholdIsStrictShareOfTheFullWindow) {
+  // mu = 0.4 of a 5 x 5 window: 10 agreeing neighbours keep a pixel (10/25 = 0.4 is not < 0.4),
+  // 9 remove it. The neighbours are placed so that each of them has enough support itself.
+  for (int n_agree : {9, 10}) {
+    cv::Mat d = filled(5, 5, kNaN);
+    d.at<float>(2, 2) = 20.f;
+    int placed = 0;
+    for (int y = 0; y < 5 && placed < n_agree; ++y) {
+      for (int x = 0; x < 5 && placed < n_agree; ++x) {
+        if (y == 2 && x == 2) continue;
+        d.at<float>(y, x) = 20.f + 3.9f;  // differs by less than 4 px: agrees
+        ++placed;
+      }
+    }
+    cv::Mat code;
+    PostFilterParams p = paperFilter();
+    cv::Mat before = d.clone();
+    removeIsolatedOutliers(d, code, p);
+    if (n_agree == 10) {
+      EXPECT_EQ(d.at<float>(2, 2), 20.f) << "10 agreeing neighbours must keep the pixel";
+    } else {
+      EXPECT_TRUE(std::isnan(d.at<float>(2, 2))) << "9 agreeing neighbours must remove it";
+    }
+  }
+}
+
+TEST(IsolatedOutliers, NeighbourExactlyAtToleranceDoesNotAgree) {
+  cv::Mat d = filled(5, 5, 14.f);  // every neighbour differs by exactly 4 px
+  d.at<float>(2, 2) = 10.f;
+  cv::Mat code;
+  removeIsolatedOutliers(d, code, paperFilter());
+  EXPECT_TRUE(std::isnan(d.at<float>(2, 2)));
+}
+
+TEST(IsolatedOutliers, DecidesFromTheInputMapNotFromEarlierRemovals) {
+  // A 2 x 5 strip of equal values: every pixel has 9 agreeing neighbours at most. All are removed,
+  // and the result does not depend on visiting order (the first removal must not change the
+  // count of the next pixel). A 4 x 5 block keeps its pixels with >= 10 neighbours.
+  cv::Mat d = filled(12, 12, kNaN);
+  d(cv::Rect(1, 1, 5, 2)).setTo(7.f);
+  d(cv::Rect(3, 5, 5, 4)).setTo(3.f);
+  cv::Mat code;
+  removeIsolatedOutliers(d, code, paperFilter());
+  EXPECT_EQ(cv::countNonZero(d(cv::Rect(1, 1, 5, 2)) == 7.f), 0);
+  // In the 4 x 5 block the centre pixels have 4*5 - 1 = 19 (or fewer near its edge) neighbours;
+  // corner pixels have 3*3 - 1 = 8 < 10 and go.
+  EXPECT_EQ(d.at<float>(6, 5), 3.f);
+  EXPECT_TRUE(std::isnan(d.at<float>(5, 3)));
+}
+
+TEST(SmallHoles, FillsOneAndTwoPixelHolesWithTheNeighbourMedian) {
+  cv::Mat d = filled(7, 9, 10.f);
+  d.at<float>(1, 2) = 30.f;  // a neighbour with another value
+  d.at<float>(2, 2) = kNaN;  // a 1 px hole
+  d.at<float>(5, 3) = kNaN;  // a 2 px horizontal hole
+  d.at<float>(5, 4) = kNaN;
+  cv::Mat code(7, 9, CV_8UC1, cv::Scalar(kCodeAcceptedBase));
+  EXPECT_EQ(fillSmallHoles(d, code, paperFilter()), 3);
+  EXPECT_EQ(d.at<float>(2, 2), 10.f);  // median of seven 10s and one 30
+  EXPECT_EQ(d.at<float>(5, 3), 10.f);
+  EXPECT_EQ(d.at<float>(5, 4), 10.f);
+  EXPECT_EQ(code.at<uint8_t>(5, 4), kCodeFilled);
+}
+
+TEST(SmallHoles, LeavesThreePixelHolesAndHolesAtTheBorder) {
+  cv::Mat d = filled(9, 9, 10.f);
+  d(cv::Rect(2, 2, 3, 3)).setTo(kNaN);  // 3 x 3: 3 px wide both ways
+  d.at<float>(7, 0) = kNaN;             // touches the left border: not bounded horizontally...
+  d.at<float>(6, 0) = 10.f;             // ...but bounded vertically (1 px tall): filled
+  d.at<float>(0, 8) = kNaN;             // corner: bounded neither way
+  cv::Mat code;
+  EXPECT_EQ(fillSmallHoles(d, code, paperFilter()), 1);
+  EXPECT_EQ(cv::countNonZero(d(cv::Rect(2, 2, 3, 3)) == d(cv::Rect(2, 2, 3, 3))), 0);
+  EXPECT_EQ(d.at<float>(7, 0), 10.f);
+  EXPECT_TRUE(std::isnan(d.at<float>(0, 8)));
+}
+
+TEST(SmallHoles, EvenCountTakesTheLowerMiddleValue) {
+  // Hole at a depth edge: neighbours 4 x 10 and 4 x 20 -> the lower middle, 10, never 15.
+  cv::Mat d = filled(3, 3, 10.f);
+  d.at<float>(0, 2) = d.at<float>(1, 2) = d.at<float>(2, 2) = 20.f;
+  d.at<float>(0, 1) = 20.f;
+  d.at<float>(1, 1) = kNaN;
+  cv::Mat code;
+  EXPECT_EQ(fillSmallHoles(d, code, paperFilter()), 1);
+  EXPECT_EQ(d.at<float>(1, 1), 10.f);
+}
+
+TEST(SmallHoles, OnePixelLimitLeavesTwoPixelHoles) {
+  cv::Mat d = filled(5, 6, 10.f);
+  d.at<float>(2, 2) = d.at<float>(2, 3) = kNaN;
+  d.at<float>(1, 2) = d.at<float>(1, 3) = kNaN;  // 2 x 2 hole
+  PostFilterParams p = paperFilter();
+  p.fill_max_hole_px = 1;
+  cv::Mat code;
+  EXPECT_EQ(fillSmallHoles(d, code, p), 0);
+  p.fill_max_hole_px = 2;
+  EXPECT_EQ(fillSmallHoles(d, code, p), 4);
+}
+
+TEST(PostFilterParams, ValidateNamesTheBadField) {
+  PostFilterParams p;
+  EXPECT_EQ(p.validate(), "");
+  p.outlier_window_px = 4;
+  EXPECT_NE(p.validate().find("outlier_window_px"), std::string::npos);
+  p = PostFilterParams{};
+  p.outlier_disparity_tol_px = 0.0;
+  EXPECT_NE(p.validate().find("outlier_disparity_tol_px"), std::string::npos);
+  p = PostFilterParams{};
+  p.outlier_min_share = 1.5;
+  EXPECT_NE(p.validate().find("outlier_min_share"), std::string::npos);
+  p = PostFilterParams{};
+  p.fill_max_hole_px = 3;
+  EXPECT_NE(p.validate().find("fill_max_hole_px"), std::string::npos);
+}
+
+TEST(PostFilter, RejectsWrongTypes) {
+  cv::Mat d(4, 4, CV_64FC1, cv::Scalar(1));
+  cv::Mat code;
+  EXPECT_THROW(removeIsolatedOutliers(d, code, PostFilterParams{}), std::invalid_argument);
+  EXPECT_THROW(fillSmallHoles(d, code, PostFilterParams{}), std::invalid_argument);
+  cv::Mat f(4, 4, CV_32FC1, cv::Scalar(1));
+  cv::Mat bad_code(3, 3, CV_8UC1);
+  EXPECT_THROW(fillSmallHoles(f, bad_code, PostFilterParams{}), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace endo_stereo
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}
