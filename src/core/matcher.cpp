@@ -506,6 +506,123 @@ void computeLevelMaps(const cv::Mat& lf, const cv::Mat& rf, const cv::Mat& lap_l
   gamma(lap_r, lap_r2, m.gamma_r);
 }
 
+// Small-window cost of left pixel (x, y) at integer disparity d: mean |L - R| over a (2k+1)^2
+// window (k = half), or NCC. Returns +inf when the window leaves the image.
+float smallCost(const cv::Mat& lf, const cv::Mat& rf, int x, int y, int d, int k, bool ncc) {
+  if (x - k < 0 || x + k >= lf.cols || x - d - k < 0 || x - d + k >= lf.cols || y - k < 0 ||
+      y + k >= lf.rows) {
+    return std::numeric_limits<float>::infinity();
+  }
+  double sad = 0, sl = 0, sr = 0, sll = 0, srr = 0, slr = 0;
+  for (int yy = y - k; yy <= y + k; ++yy) {
+    const float* l = lf.ptr<float>(yy);
+    const float* r = rf.ptr<float>(yy) - d;
+    for (int xx = x - k; xx <= x + k; ++xx) {
+      sad += std::fabs(l[xx] - r[xx]);
+      sl += l[xx]; sr += r[xx]; sll += l[xx] * l[xx]; srr += r[xx] * r[xx]; slr += l[xx] * r[xx];
+    }
+  }
+  const double n = (2 * k + 1) * (2 * k + 1);
+  if (!ncc) return static_cast<float>(sad / n);
+  const double a = n * sll - sl * sl, b = n * srr - sr * sr;
+  if (a <= 0 || b <= 0) return 1.f;
+  return static_cast<float>(1.0 - (n * slr - sl * sr) / std::sqrt(a * b));
+}
+
+// Removes connected regions (4-neighbours whose disparities differ by at most tol) smaller than
+// max_area pixels. Returns the number removed.
+int64_t removeSpeckles(cv::Mat& disp, cv::Mat& code, int max_area, float tol, uint8_t mark) {
+  const int H = disp.rows, W = disp.cols;
+  std::vector<int> label(static_cast<size_t>(H) * W, -1);
+  std::vector<int> stack, members;
+  int64_t removed = 0;
+  for (int start = 0; start < H * W; ++start) {
+    if (label[start] >= 0 || std::isnan(disp.ptr<float>()[start])) continue;
+    members.clear();
+    stack.push_back(start);
+    label[start] = start;
+    while (!stack.empty()) {
+      const int i = stack.back();
+      stack.pop_back();
+      members.push_back(i);
+      const int y = i / W, x = i % W;
+      const float d = disp.ptr<float>()[i];
+      const int nb[4] = {x > 0 ? i - 1 : -1, x < W - 1 ? i + 1 : -1, y > 0 ? i - W : -1,
+                         y < H - 1 ? i + W : -1};
+      for (int j : nb) {
+        if (j < 0 || label[j] >= 0) continue;
+        const float e = disp.ptr<float>()[j];
+        if (std::isnan(e) || std::fabs(e - d) > tol) continue;
+        label[j] = start;
+        stack.push_back(j);
+      }
+    }
+    if (static_cast<int>(members.size()) < max_area) {
+      for (int i : members) {
+        disp.ptr<float>()[i] = std::numeric_limits<float>::quiet_NaN();
+        code.ptr<uint8_t>()[i] = mark;
+      }
+      removed += static_cast<int64_t>(members.size());
+    }
+  }
+  return removed;
+}
+
+void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& window_idx, const cv::Mat& lf,
+                          const cv::Mat& rf, MatchResult& out) {
+  const cv::Mat src = out.disparity.clone();
+  const int H = src.rows, W = src.cols;
+  const float jump = static_cast<float>(mp.edge_disparity_jump_px);
+  static const int kK = getenv("ES_K") ? atoi(getenv("ES_K")) : -1;
+  static const float kM = getenv("ES_M") ? atof(getenv("ES_M")) : 0.0f;
+  static const bool kNcc = getenv("ES_NCC") != nullptr;
+  for (int y = 0; y < H; ++y) {
+    for (int x = 0; x < W; ++x) {
+      const float d = src.at<float>(y, x);
+      if (std::isnan(d)) continue;
+      const int r = (mp.window_min_px + window_idx.at<uint8_t>(y, x) * mp.window_step_px) / 2;
+      float lo = d, hi = d;
+      int nlo = 0, nhi = 0, nvalid = 0;
+      static const float kC = getenv("ES_C") ? atof(getenv("ES_C")) : 0.f;
+      static const float kS = getenv("ES_S") ? atof(getenv("ES_S")) : 0.f;
+      for (int yy = std::max(0, y - r); yy <= std::min(H - 1, y + r); ++yy) {
+        const float* row = src.ptr<float>(yy);
+        for (int xx = std::max(0, x - r); xx <= std::min(W - 1, x + r); ++xx) {
+          if (std::isnan(row[xx])) continue;
+          ++nvalid;
+          const float tol = jump + kS * std::max(std::abs(xx - x), std::abs(yy - y));
+          if (row[xx] < d - tol) { ++nlo; lo = std::min(lo, row[xx]); }
+          if (row[xx] > d + tol) { ++nhi; hi = std::max(hi, row[xx]); }
+        }
+      }
+      const int need = std::max(1, static_cast<int>(std::ceil(kC * (2 * r + 1) * (2 * r + 1))));
+      if (nlo < need) lo = d;
+      if (nhi < need) hi = d;
+      bool reject = false;
+      if (d - lo > 0 || hi - d > 0) {
+        reject = true;
+        if (kK >= 0) {
+          const int di = static_cast<int>(std::lround(d));
+          const float own = smallCost(lf, rf, x, y, di, kK, kNcc);
+          bool ok = std::isfinite(own);
+          if (ok && d - lo > jump) {
+            ok = own * (1.f + kM) < smallCost(lf, rf, x, y, static_cast<int>(std::lround(lo)), kK, kNcc);
+          }
+          if (ok && hi - d > jump) {
+            ok = own * (1.f + kM) < smallCost(lf, rf, x, y, static_cast<int>(std::lround(hi)), kK, kNcc);
+          }
+          reject = !ok;
+        }
+      }
+      if (reject) {
+        out.disparity.at<float>(y, x) = std::numeric_limits<float>::quiet_NaN();
+        out.confidence.at<float>(y, x) = 0.f;
+        out.code.at<uint8_t>(y, x) = kCodeRejectEdge;
+      }
+    }
+  }
+}
+
 class ThreadCountGuard {
  public:
   explicit ThreadCountGuard(int n) : old_(cv::getNumThreads()), active_(n > 0) {
@@ -617,6 +734,12 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       im.release(std::move(s));
     });
   }
+  static const int kSpeckle = getenv("ES_SP") ? atoi(getenv("ES_SP")) : 0;
+  static const float kSpeckleTol = getenv("ES_SPT") ? atof(getenv("ES_SPT")) : 1.f;
+  if (kSpeckle > 0) removeSpeckles(out.disparity, out.code, kSpeckle, kSpeckleTol, kCodeRejectOutlier);
+  static const bool kOutFirst = getenv("ES_ORDER") != nullptr;
+  if (kOutFirst && filter_params_.remove_outliers) removeIsolatedOutliers(out.disparity, out.code, filter_params_);
+  if (mp.edge_disparity_jump_px > 0.0) rejectEdgeStraddlers(mp, im.window_idx, im.lf, im.rf, out);
   const auto t1 = std::chrono::steady_clock::now();
 
   for (int y = 0; y < H; ++y) {

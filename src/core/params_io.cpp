@@ -57,7 +57,7 @@ std::string toText(double v) {
   if (s.find_first_of(".eEn") == std::string::npos) s += ".0";
   return s;
 }
-std::string toText(const std::string& v) { return v; }
+[[maybe_unused]] std::string toText(const std::string& v) { return v; }
 
 std::string fromText(const std::string& text, bool& out) {
   const std::string t = lower(trim(text));
@@ -97,7 +97,7 @@ std::string fromText(const std::string& text, double& out) {
   return {};
 }
 
-std::string fromText(const std::string& text, std::string& out) {
+[[maybe_unused]] std::string fromText(const std::string& text, std::string& out) {
   out = text;
   return {};
 }

@@ -70,7 +70,7 @@ TEST(MiddleburyScene, LoadsVenusWithScaleAndMasks) {
   double lo, hi;
   cv::minMaxLoc(s.gt, &lo, &hi, nullptr, nullptr, s.all);
   EXPECT_GE(lo, 0.0);
-  EXPECT_LE(hi, s.max_disp + 1e-6);
+  EXPECT_LE(hi, s.max_disp + 1.0);  // info.txt rounds: venus reaches 19.125
   // The masks nest: disc within nonocc within all.
   EXPECT_EQ(cv::countNonZero(s.disc & ~s.nonocc), 0);
   EXPECT_EQ(cv::countNonZero(s.nonocc & ~s.all), 0);

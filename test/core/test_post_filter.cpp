@@ -35,9 +35,13 @@ TEST(IsolatedOutliers, RemovesAPixelDifferingFromAUniformField) {
   cv::Mat d = filled(9, 9, 10.f);
   d.at<float>(4, 4) = 30.f;
   cv::Mat code;
-  EXPECT_EQ(removeIsolatedOutliers(d, code, paperFilter()), 1);
+  // The centre goes, and so do the four image corners: the denominator is always window^2
+  // (METHOD.md), and a corner sees only 3 x 3 - 1 = 8 neighbours, fewer than 0.4 * 25 = 10.
+  EXPECT_EQ(removeIsolatedOutliers(d, code, paperFilter()), 5);
   EXPECT_TRUE(std::isnan(d.at<float>(4, 4)));
+  EXPECT_TRUE(std::isnan(d.at<float>(0, 0)));
   EXPECT_EQ(d.at<float>(4, 3), 10.f);
+  EXPECT_EQ(d.at<float>(0, 1), 10.f);  // 3 x 4 - 1 = 11 neighbours
 }
 
 TEST(IsolatedOutliers, ThresholdIsStrictShareOfTheFullWindow) {

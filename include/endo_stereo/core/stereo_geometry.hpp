@@ -85,6 +85,9 @@ struct RectifiedGeometry {
   /// non-square pixels (e.g. a single field of interlaced video rectified to its own size).
   double fy_px = 0.0;
   bool polar = false;       ///< polar rectification: no depth from disparity (see above)
+  /// Rotation from the raw left optical frame to the left rectified optical frame (calibrated
+  /// modes; identity otherwise): X_rect = R_rect_raw_left * X_raw.
+  cv::Matx33d R_rect_raw_left = cv::Matx33d::eye();
   double doffs() const { return cx_left - cx_right; }
   double fyOrF() const { return fy_px > 0.0 ? fy_px : f_px; }
   /// Depth for disparity @p d (px): f_px * baseline_m / (d - doffs()); NaN when d <= doffs().

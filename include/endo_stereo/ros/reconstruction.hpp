@@ -123,6 +123,7 @@ class Reconstruction {
   std::string name_;
   const RosParams ros_params_;
   RectifyMode mode_;  // fixed at construction (decides the input topics)
+  std::string left_topic_, right_topic_;
 
   // --- Inputs (guarded by connect_mutex_ for (un)subscription).
   image_transport::ImageTransport it_;
@@ -144,7 +145,8 @@ class Reconstruction {
   // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
   mutable std::mutex info_mutex_;
   sensor_msgs::CameraInfoConstPtr left_info_, right_info_;
-  ros::WallTime last_left_arrival_, last_right_arrival_, last_pair_arrival_;
+  ros::WallTime last_left_arrival_, last_right_arrival_;
+  ros::WallTime left_unpaired_since_, right_unpaired_since_;  // first image since the last pair
   ros::Time last_left_stamp_, last_right_stamp_;
 
   // --- The one-pair slot between the callbacks and the processing thread.

@@ -1,6 +1,6 @@
 /**
  * @file ros_params.hpp
- * @brief The nodelet's own settings (RosParams) and the one path config/*.yaml -> ROS parameters
+ * @brief The nodelet's own settings (RosParams) and the one path config/<preset>.yaml -> ROS parameters
  * -> core structs (DESIGN.md "Parameters").
  *
  * Pipeline parameters live under the node's private namespace with the keys of params_io.hpp,

@@ -1,0 +1,609 @@
+// The ROS side of endo_stereo. See reconstruction.hpp for topics and behaviour.
+#include "endo_stereo/ros/reconstruction.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+#include <vector>
+
+#include <boost/bind/bind.hpp>
+#include <sensor_msgs/PointCloud2.h>
+#include <sensor_msgs/image_encodings.h>
+#include <stereo_msgs/DisparityImage.h>
+#include <tf2_eigen/tf2_eigen.h>
+
+#include "endo_stereo/ros/conversions.hpp"
+
+namespace endo_stereo {
+namespace {
+
+namespace enc = sensor_msgs::image_encodings;
+
+// Latencies kept for the median / p90 in the diagnostics (about 10 s at 25 fps).
+constexpr size_t kLatencyWindow = 250;
+// Throttle period of input error messages, s: often enough to notice, rare enough for a flood.
+constexpr double kThrottleS = 5.0;
+
+double percentile(std::vector<double> v, double q) {
+  if (v.empty()) return std::nan("");
+  const size_t k = static_cast<size_t>(std::round(q * (v.size() - 1)));
+  std::nth_element(v.begin(), v.begin() + k, v.end());
+  return v[k];
+}
+
+// Applies a rigid transform to the xyz of a PointCloud2 written by ros_conv::toPointCloud2
+// (x y z float32 at offsets 0, 4, 8); NaN points stay NaN.
+void transformCloud(sensor_msgs::PointCloud2& msg, const Eigen::Isometry3d& T) {
+  const Eigen::Matrix3f R = T.linear().cast<float>();
+  const Eigen::Vector3f t = T.translation().cast<float>();
+  for (uint32_t r = 0; r < msg.height; ++r) {
+    uint8_t* row = msg.data.data() + static_cast<size_t>(r) * msg.row_step;
+    for (uint32_t c = 0; c < msg.width; ++c) {
+      float* p = reinterpret_cast<float*>(row + static_cast<size_t>(c) * msg.point_step);
+      if (!std::isfinite(p[0])) continue;
+      const Eigen::Vector3f q = R * Eigen::Vector3f(p[0], p[1], p[2]) + t;
+      p[0] = q.x();
+      p[1] = q.y();
+      p[2] = q.z();
+    }
+  }
+}
+
+}  // namespace
+
+Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle& pnh,
+                               const std::string& name, const RosParams& ros_params,
+                               const PipelineParams& params)
+    : nh_(nh),
+      pnh_(pnh),
+      name_(name),
+      ros_params_(ros_params),
+      mode_(params.rectify.mode),
+      left_topic_(mode_ == RectifyMode::kPassThrough ? "left/image_rect" : "left/image_raw"),
+      right_topic_(mode_ == RectifyMode::kPassThrough ? "right/image_rect" : "right/image_raw"),
+      it_(nh),
+      params_(params),
+      updater_(nh, pnh, name) {
+  std::string e = ros_params_.validate();
+  if (!e.empty()) throw std::invalid_argument(e);
+  e = params.validate();
+  if (!e.empty()) throw std::invalid_argument(e);
+  pipeline_ = std::make_unique<Pipeline>(params);
+
+  if (!ros_params_.target_frame.empty()) {
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_, nh_);
+  }
+
+  // The two image filters feed the synchroniser; their own callbacks only count arrivals, so a
+  // side that never finds a partner can be reported.
+  left_sub_.registerCallback(
+      boost::bind(&Reconstruction::imageCb, this, true, boost::placeholders::_1));
+  right_sub_.registerCallback(
+      boost::bind(&Reconstruction::imageCb, this, false, boost::placeholders::_1));
+  if (ros_params_.approximate_sync) {
+    approx_sync_ = std::make_unique<message_filters::Synchronizer<ApproxPolicy>>(
+        ApproxPolicy(ros_params_.queue_size), left_sub_, right_sub_);
+    approx_sync_->setMaxIntervalDuration(ros::Duration(ros_params_.sync_tolerance_s));
+    approx_sync_->registerCallback(
+        boost::bind(&Reconstruction::pairCb, this, boost::placeholders::_1,
+                    boost::placeholders::_2));
+  } else {
+    exact_sync_ = std::make_unique<message_filters::Synchronizer<ExactPolicy>>(
+        ExactPolicy(ros_params_.queue_size), left_sub_, right_sub_);
+    exact_sync_->registerCallback(
+        boost::bind(&Reconstruction::pairCb, this, boost::placeholders::_1,
+                    boost::placeholders::_2));
+  }
+
+  worker_ = std::thread(&Reconstruction::workerLoop, this);
+
+  updater_.setHardwareID("endo_stereo");
+  updater_.add("reconstruction", this, &Reconstruction::diagnose);
+  diag_prev_time_ = ros::WallTime::now();
+  diag_timer_ = nh_.createWallTimer(ros::WallDuration(ros_params_.diagnostics_period_s),
+                                    [this](const ros::WallTimerEvent&) { updater_.force_update(); });
+
+  // Advertise under the connect mutex: a connect callback fired by the first advertise must not
+  // look at publishers that are not assigned yet (stereo_image_proc does the same).
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  ros::SubscriberStatusCallback cb = boost::bind(&Reconstruction::connectCb, this);
+  image_transport::SubscriberStatusCallback icb = boost::bind(&Reconstruction::connectCb, this);
+  pub_disparity_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity", 1, cb, cb);
+  pub_points_ = nh_.advertise<sensor_msgs::PointCloud2>("points2", 1, cb, cb);
+  pub_fused_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity_fused", 1, cb, cb);
+  pub_confidence_ = it_.advertise("confidence", 1, icb, icb);
+  pub_coverage_ = it_.advertise("coverage", 1, icb, icb);
+  pub_left_rect_ = it_.advertise("left/image_rect_color", 1, icb, icb);
+  pub_right_rect_ = it_.advertise("right/image_rect", 1, icb, icb);
+}
+
+Reconstruction::~Reconstruction() {
+  diag_timer_.stop();
+  {
+    std::lock_guard<std::mutex> lock(connect_mutex_);
+    unsubscribeInputs();
+  }
+  {
+    std::lock_guard<std::mutex> lock(slot_mutex_);
+    shutdown_ = true;
+  }
+  slot_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+bool Reconstruction::usesCameraInfo() const { return mode_ != RectifyMode::kUncalibrated; }
+
+bool Reconstruction::needsCameraInfo() const {
+  if (mode_ == RectifyMode::kCalibrated) return true;
+  if (mode_ == RectifyMode::kPassThrough) {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    return !(params_.rectify.focal_px > 0.0 && params_.rectify.baseline_m > 0.0);
+  }
+  return false;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Lazy subscription
+// ------------------------------------------------------------------------------------------------
+
+void Reconstruction::connectCb() {
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  const uint32_t n = pub_disparity_.getNumSubscribers() + pub_points_.getNumSubscribers() +
+                     pub_fused_.getNumSubscribers() + pub_confidence_.getNumSubscribers() +
+                     pub_coverage_.getNumSubscribers() + pub_left_rect_.getNumSubscribers() +
+                     pub_right_rect_.getNumSubscribers();
+  if (n == 0 && subscribed_) {
+    unsubscribeInputs();
+  } else if (n > 0 && !subscribed_) {
+    subscribeInputs();
+  }
+}
+
+void Reconstruction::subscribeInputs() {
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    left_unpaired_since_ = ros::WallTime();
+    right_unpaired_since_ = ros::WallTime();
+  }
+  const std::string& left_topic = left_topic_;
+  const std::string& right_topic = right_topic_;
+  const image_transport::TransportHints hints(ros_params_.image_transport, ros::TransportHints(),
+                                              pnh_);
+  try {
+    left_sub_.subscribe(it_, left_topic, ros_params_.queue_size, hints);
+    right_sub_.subscribe(it_, right_topic, ros_params_.queue_size, hints);
+  } catch (const image_transport::TransportLoadException& ex) {
+    ROS_ERROR("%s: cannot subscribe with image_transport '%s': %s", name_.c_str(),
+              ros_params_.image_transport.c_str(), ex.what());
+    left_sub_.unsubscribe();
+    right_sub_.unsubscribe();
+    return;
+  }
+  if (usesCameraInfo()) {
+    left_info_sub_ = nh_.subscribe<sensor_msgs::CameraInfo>(
+        "left/camera_info", ros_params_.queue_size,
+        boost::bind(&Reconstruction::infoCb, this, true, boost::placeholders::_1));
+    right_info_sub_ = nh_.subscribe<sensor_msgs::CameraInfo>(
+        "right/camera_info", ros_params_.queue_size,
+        boost::bind(&Reconstruction::infoCb, this, false, boost::placeholders::_1));
+  }
+  subscribed_ = true;
+  ROS_DEBUG("%s: subscribed to %s and %s", name_.c_str(), nh_.resolveName(left_topic).c_str(),
+            nh_.resolveName(right_topic).c_str());
+}
+
+void Reconstruction::unsubscribeInputs() {
+  left_sub_.unsubscribe();
+  right_sub_.unsubscribe();
+  left_info_sub_.shutdown();
+  right_info_sub_.shutdown();
+  subscribed_ = false;
+}
+
+bool Reconstruction::inputsSubscribed() const {
+  std::lock_guard<std::mutex> lock(connect_mutex_);
+  return subscribed_;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Input callbacks (ROS callback threads)
+// ------------------------------------------------------------------------------------------------
+
+void Reconstruction::infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg) {
+  std::lock_guard<std::mutex> lock(info_mutex_);
+  (left ? left_info_ : right_info_) = msg;
+}
+
+void Reconstruction::imageCb(bool left, const sensor_msgs::ImageConstPtr& msg) {
+  const ros::WallTime now = ros::WallTime::now();
+  std::string problem;
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    (left ? last_left_arrival_ : last_right_arrival_) = now;
+    (left ? last_left_stamp_ : last_right_stamp_) = msg->header.stamp;
+    ros::WallTime& waiting_since = left ? left_unpaired_since_ : right_unpaired_since_;
+    if (waiting_since.isZero()) waiting_since = now;
+    // A side that keeps arriving while no pair forms: the other side is missing, or the stamps
+    // never match (exact sync with offset stamps, or offsets above the tolerance).
+    if ((now - waiting_since).toSec() > ros_params_.unpaired_timeout_s) {
+      const ros::WallTime& other = left ? last_right_arrival_ : last_left_arrival_;
+      std::ostringstream m;
+      m.precision(6);
+      m << std::fixed;
+      if (other.isZero() || (now - other).toSec() > ros_params_.unpaired_timeout_s) {
+        m << (left ? "left" : "right") << " images arrive without a " << (left ? "right" : "left")
+          << " image for " << (now - waiting_since).toSec() << " s: check the "
+          << nh_.resolveName(left ? right_topic_ : left_topic_) << " topic";
+      } else {
+        m << "left and right images arrive but do not pair (last stamps: left "
+          << last_left_stamp_.toSec() << ", right " << last_right_stamp_.toSec() << "); "
+          << (ros_params_.approximate_sync
+                  ? "their stamps differ by more than ~sync_tolerance_s"
+                  : "exact synchronisation needs equal stamps (or set ~approximate_sync true)");
+      }
+      problem = m.str();
+    }
+  }
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++(left ? counters_.left_images : counters_.right_images);
+  }
+  if (!problem.empty()) {
+    ROS_ERROR_THROTTLE(kThrottleS, "%s: %s", name_.c_str(), problem.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    last_error_ = problem;
+    last_error_time_ = now;
+  }
+}
+
+void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
+                            const sensor_msgs::ImageConstPtr& right) {
+  Pair pair;
+  pair.left = left;
+  pair.right = right;
+  pair.arrival = ros::WallTime::now();
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    pair.left_info = left_info_;
+    pair.right_info = right_info_;
+    left_unpaired_since_ = ros::WallTime();
+    right_unpaired_since_ = ros::WallTime();
+  }
+  bool dropped = false;
+  {
+    std::lock_guard<std::mutex> lock(slot_mutex_);
+    dropped = slot_.has_value();
+    slot_ = std::move(pair);
+  }
+  slot_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.pairs_received;
+  if (dropped) ++counters_.pairs_dropped;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Parameters
+// ------------------------------------------------------------------------------------------------
+
+std::string Reconstruction::setPipelineParams(const PipelineParams& params) {
+  std::string e = params.validate();
+  if (!e.empty()) return e;
+  if (params.rectify.mode != mode_) {
+    return "rectify.mode: cannot change from '" + toString(mode_) + "' to '" +
+           toString(params.rectify.mode) + "' while running (it selects the input topics)";
+  }
+  std::lock_guard<std::mutex> lock(params_mutex_);
+  params_ = params;
+  params_pending_ = true;
+  return {};
+}
+
+PipelineParams Reconstruction::pipelineParams() const {
+  std::lock_guard<std::mutex> lock(params_mutex_);
+  return params_;
+}
+
+ReconstructionCounters Reconstruction::counters() const {
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  return counters_;
+}
+
+// ------------------------------------------------------------------------------------------------
+// Processing thread
+// ------------------------------------------------------------------------------------------------
+
+void Reconstruction::workerLoop() {
+  for (;;) {
+    Pair pair;
+    {
+      std::unique_lock<std::mutex> lock(slot_mutex_);
+      slot_cv_.wait(lock, [this] { return shutdown_ || slot_.has_value(); });
+      if (shutdown_) return;
+      pair = std::move(*slot_);
+      slot_.reset();
+    }
+    try {
+      processPair(pair);
+    } catch (const std::exception& ex) {
+      // The pipeline promises not to throw on bad input; this is the last line of defence that
+      // keeps the nodelet (and the manager's other nodelets) alive if something does.
+      reject("pair", std::string("unexpected exception: ") + ex.what());
+    }
+  }
+}
+
+void Reconstruction::reject(const std::string& what, const std::string& error) {
+  ROS_ERROR_THROTTLE(kThrottleS, "%s: %s rejected: %s", name_.c_str(), what.c_str(),
+                     error.c_str());
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.pairs_rejected;
+  last_error_ = error;
+  last_error_time_ = ros::WallTime::now();
+}
+
+bool Reconstruction::checkPair(const Pair& p, std::string* error) {
+  const sensor_msgs::Image& l = *p.left;
+  const sensor_msgs::Image& r = *p.right;
+  std::ostringstream m;
+  if (l.width != r.width || l.height != r.height) {
+    m << "image sizes differ: left " << l.width << "x" << l.height << ", right " << r.width << "x"
+      << r.height;
+    *error = m.str();
+    return false;
+  }
+  if (l.encoding != r.encoding) {
+    // The core converts each side on its own, so mixed encodings would work, but a stereo
+    // camera never produces them: it means two topics from different sources.
+    m << "encodings differ: left '" << l.encoding << "', right '" << r.encoding << "'";
+    *error = m.str();
+    return false;
+  }
+  if (!needsCameraInfo() && !(usesCameraInfo() && p.left_info && p.right_info)) return true;
+  if (!p.left_info || !p.right_info) {
+    m << "no camera_info received yet on "
+      << nh_.resolveName(!p.left_info ? "left/camera_info" : "right/camera_info")
+      << " (calibrated input needs both; or set rectify.mode uncalibrated)";
+    *error = m.str();
+    return false;
+  }
+  std::string e = ros_conv::checkCameraInfo(*p.left_info, "left/camera_info",
+                                            static_cast<int>(l.width), static_cast<int>(l.height));
+  if (e.empty()) {
+    e = ros_conv::checkCameraInfo(*p.right_info, "right/camera_info", static_cast<int>(r.width),
+                                  static_cast<int>(r.height));
+  }
+  if (e.empty()) e = ros_conv::stereoFromCameraInfo(*p.left_info, *p.right_info).validate();
+  if (!e.empty()) {
+    *error = e;
+    return false;
+  }
+  return true;
+}
+
+void Reconstruction::processPair(const Pair& pair) {
+  // Parameters change only here, between two frames.
+  {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    if (params_pending_) {
+      params_pending_ = false;
+      try {
+        pipeline_->setParams(params_);
+      } catch (const std::invalid_argument& ex) {
+        ROS_ERROR("%s: new parameters refused by the pipeline: %s", name_.c_str(), ex.what());
+      }
+    }
+  }
+  // Fused and coverage outputs are computed while configured or while someone listens.
+  {
+    OutputParams configured;
+    {
+      std::lock_guard<std::mutex> lock(params_mutex_);
+      configured = params_.output;
+    }
+    PipelineParams p = pipeline_->params();
+    const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0;
+    const bool want_cov = configured.coverage || pub_coverage_.getNumSubscribers() > 0;
+    if (p.output.fused != want_fused || p.output.coverage != want_cov) {
+      p.output.fused = want_fused;
+      p.output.coverage = want_cov;
+      pipeline_->setParams(p);
+    }
+  }
+
+  const ros::Time stamp = pair.left->header.stamp;
+  if (!last_stamp_.isZero() && stamp <= last_stamp_) {
+    const double back = (last_stamp_ - stamp).toSec();
+    if (back > ros_params_.restart_jump_back_s) {
+      ROS_WARN_THROTTLE(kThrottleS, "%s: time went back by %.3f s (a looping bag or a restarted "
+                        "driver): temporal state reset", name_.c_str(), back);
+      pipeline_->reset();
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++counters_.restarts;
+    } else {
+      std::ostringstream m;
+      m.precision(6);
+      m << std::fixed << "out-of-order pair: stamp " << stamp.toSec()
+        << " s is not after the last processed " << last_stamp_.toSec() << " s";
+      reject("pair", m.str());
+      return;
+    }
+  }
+
+  std::string error;
+  if (!checkPair(pair, &error)) {
+    reject("pair", error);
+    return;
+  }
+  if (pair.left_info && pair.right_info && usesCameraInfo()) {
+    const StereoCalibration calib = ros_conv::stereoFromCameraInfo(*pair.left_info, *pair.right_info);
+    if (!has_calibration_ || calib != calibration_) {
+      error = pipeline_->setCalibration(calib);
+      if (!error.empty()) {
+        reject("camera_info", error);
+        return;
+      }
+      calibration_ = calib;
+      has_calibration_ = true;
+    }
+  }
+
+  StereoInput in;
+  if (!ros_conv::imageToMat(*pair.left, in.left, &error)) {
+    reject("left image", error);
+    return;
+  }
+  if (!ros_conv::imageToMat(*pair.right, in.right, &error)) {
+    reject("right image", error);
+    return;
+  }
+  in.left_encoding = pair.left->encoding;
+  in.right_encoding = pair.right->encoding;
+  in.stamp_s = stamp.toSec();
+  if (!pipeline_->process(in, out_, &error)) {
+    reject("pair", error);
+    return;
+  }
+  last_stamp_ = stamp;
+  publishOutputs(pair, out_);
+
+  const double latency_ms = (ros::WallTime::now() - pair.arrival).toSec() * 1e3;
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.pairs_processed;
+  latencies_ms_.push_back(latency_ms);
+  if (latencies_ms_.size() > kLatencyWindow) latencies_ms_.pop_front();
+  last_density_ = out_.match.stats.density();
+  if (out_.rect_quality.valid) last_quality_ = out_.rect_quality;
+  last_priors_used_ = out_.priors_used;
+}
+
+void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out) {
+  std_msgs::Header header;
+  header.stamp = pair.left->header.stamp;
+  if (!ros_params_.frame_id.empty()) {
+    header.frame_id = ros_params_.frame_id;
+  } else if (!out.geometry.frame_id.empty()) {
+    header.frame_id = out.geometry.frame_id;
+  } else {
+    header.frame_id = pair.left->header.frame_id;
+  }
+  const PipelineParams& p = pipeline_->params();
+
+  // Depth from disparity needs a metric, non-polar geometry; otherwise f and T are written as 0
+  // so no consumer mistakes the disparity for one it can triangulate.
+  RectifiedGeometry g = out.geometry;
+  const bool depth_ok = g.metric && !g.polar && g.f_px > 0.0 && g.baseline_m > 0.0;
+  if (!depth_ok) {
+    if (g.polar) g.f_px = 0.0;
+    g.baseline_m = 0.0;
+  }
+  ros_conv::DisparityRange range;
+  range.min_disparity = p.matcher.min_disparity;
+  range.max_disparity = p.matcher.max_disparity;
+  range.delta_d = p.matcher.subpixel ? ros_params_.subpixel_delta_d : 1.0;
+
+  if (pub_disparity_.getNumSubscribers() > 0) {
+    pub_disparity_.publish(ros_conv::toDisparityImage(out.match.disparity, g, range, header));
+  }
+  if (pub_fused_.getNumSubscribers() > 0 && !out.fused_disparity.empty()) {
+    pub_fused_.publish(ros_conv::toDisparityImage(out.fused_disparity, g, range, header));
+  }
+  if (pub_confidence_.getNumSubscribers() > 0 && !out.match.confidence.empty()) {
+    pub_confidence_.publish(ros_conv::matToImage(out.match.confidence, enc::TYPE_32FC1, header));
+  }
+  if (pub_coverage_.getNumSubscribers() > 0 && !out.coverage.empty()) {
+    pub_coverage_.publish(ros_conv::matToImage(out.coverage, enc::MONO16, header));
+  }
+  if (pub_left_rect_.getNumSubscribers() > 0 && !out.left_rect_color.empty()) {
+    pub_left_rect_.publish(ros_conv::matToImage(out.left_rect_color, enc::BGR8, header));
+  }
+  if (pub_right_rect_.getNumSubscribers() > 0 && !out.right_rect_gray.empty()) {
+    pub_right_rect_.publish(ros_conv::matToImage(out.right_rect_gray, enc::MONO8, header));
+  }
+  if (pub_points_.getNumSubscribers() == 0 || out.cloud.xyz.empty()) return;
+  if (!depth_ok || !out.cloud.metric) {
+    if (!warned_not_metric_) {
+      ROS_WARN("%s: points2 is not published: the geometry is not metric (uncalibrated input "
+               "without rectify.focal_px and rectify.baseline_m, or a polar rectification)",
+               name_.c_str());
+      warned_not_metric_ = true;
+    }
+    return;
+  }
+  sensor_msgs::PointCloud2 cloud = ros_conv::toPointCloud2(out.cloud, header);
+  if (tf_buffer_ && ros_params_.target_frame != header.frame_id) {
+    try {
+      const geometry_msgs::TransformStamped t = tf_buffer_->lookupTransform(
+          ros_params_.target_frame, header.frame_id, header.stamp,
+          ros::Duration(ros_params_.tf_timeout_s));
+      transformCloud(cloud, tf2::transformToEigen(t));
+      cloud.header.frame_id = ros_params_.target_frame;
+    } catch (const tf2::TransformException& ex) {
+      ROS_WARN_THROTTLE(kThrottleS, "%s: points2 not published: no transform %s <- %s at %.6f: %s",
+                        name_.c_str(), ros_params_.target_frame.c_str(), header.frame_id.c_str(),
+                        header.stamp.toSec(), ex.what());
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++counters_.tf_failures;
+      return;
+    }
+  }
+  pub_points_.publish(cloud);
+}
+
+// ------------------------------------------------------------------------------------------------
+// Diagnostics
+// ------------------------------------------------------------------------------------------------
+
+void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  const ros::WallTime now = ros::WallTime::now();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  const ReconstructionCounters& c = counters_;
+  const double dt = std::max(1e-6, (now - diag_prev_time_).toSec());
+  const double in_rate = (c.pairs_received - diag_prev_.pairs_received) / dt;
+  const double out_rate = (c.pairs_processed - diag_prev_.pairs_processed) / dt;
+  const int64_t new_drops = c.pairs_dropped - diag_prev_.pairs_dropped;
+  const int64_t new_rejects = c.pairs_rejected - diag_prev_.pairs_rejected;
+  const std::vector<double> lat(latencies_ms_.begin(), latencies_ms_.end());
+  const bool subscribed = subscribed_;  // read without connect_mutex_: a diagnostic, not control
+
+  if (!subscribed) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "idle: no subscribers to the outputs");
+  } else if (new_rejects > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "input rejected: " + last_error_);
+  } else if (new_drops > 0) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                 "overloaded: " + std::to_string(new_drops) + " pairs dropped");
+  } else if (last_quality_.valid && last_quality_.warning) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "rectification residual high");
+  } else if (c.pairs_received == diag_prev_.pairs_received &&
+             (c.left_images != diag_prev_.left_images || c.right_images != diag_prev_.right_images)) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "images do not pair: " + last_error_);
+  } else {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "ok");
+  }
+  stat.add("inputs subscribed", subscribed);
+  stat.add("input pair rate (Hz)", in_rate);
+  stat.add("output rate (Hz)", out_rate);
+  stat.add("left images", c.left_images);
+  stat.add("right images", c.right_images);
+  stat.add("pairs received", c.pairs_received);
+  stat.add("pairs processed", c.pairs_processed);
+  stat.add("pairs dropped", c.pairs_dropped);
+  stat.add("pairs rejected", c.pairs_rejected);
+  stat.add("stream restarts", c.restarts);
+  stat.add("tf failures", c.tf_failures);
+  stat.add("latency median (ms)", percentile(lat, 0.5));
+  stat.add("latency p90 (ms)", percentile(lat, 0.9));
+  stat.add("density", last_density_);
+  stat.add("priors used", last_priors_used_);
+  stat.add("rectification residual median (px)",
+           last_quality_.valid ? last_quality_.median_offset_px : std::nan(""));
+  stat.add("rectification residual p90 (px)",
+           last_quality_.valid ? last_quality_.p90_offset_px : std::nan(""));
+  stat.add("last error", last_error_);
+  diag_prev_ = c;
+  diag_prev_time_ = now;
+}
+
+}  // namespace endo_stereo

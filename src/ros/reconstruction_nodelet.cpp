@@ -1,0 +1,73 @@
+// The nodelet: parameters in, Reconstruction out, dynamic_reconfigure. See the header.
+#include "endo_stereo/ros/reconstruction_nodelet.hpp"
+
+#include <stdexcept>
+
+#include <pluginlib/class_list_macros.hpp>
+
+#include "endo_stereo/ros/reconfigure.hpp"
+#include "endo_stereo/ros/ros_params.hpp"
+
+namespace endo_stereo {
+
+ReconstructionNodelet::~ReconstructionNodelet() {
+  // The server's callback uses reconstruction_: stop it first.
+  reconfigure_server_.reset();
+  reconstruction_.reset();
+}
+
+void ReconstructionNodelet::onInit() {
+  ros::NodeHandle& nh = getNodeHandle();
+  ros::NodeHandle& pnh = getPrivateNodeHandle();
+
+  RosParams ros_params;
+  PipelineParams params;
+  std::string e = loadRosParams(pnh, ros_params);
+  if (e.empty()) e = ros_params.validate();
+  if (e.empty()) e = loadPipelineParamsFromRos(pnh, params);
+  if (e.empty()) e = params.validate();
+  if (!e.empty()) {
+    // Without valid parameters there is nothing sensible to run; say why once and stay idle
+    // (throwing out of onInit() would take the whole manager down).
+    NODELET_FATAL("invalid parameters, not starting: %s", e.c_str());
+    return;
+  }
+  try {
+    reconstruction_ = std::make_unique<Reconstruction>(nh, pnh, getName(), ros_params, params);
+  } catch (const std::exception& ex) {
+    NODELET_FATAL("cannot start: %s", ex.what());
+    return;
+  }
+  storePipelineParamsToRos(pnh, params);
+
+  reconfigure_server_ =
+      std::make_unique<dynamic_reconfigure::Server<EndoStereoConfig>>(reconfigure_mutex_, pnh);
+  // Publish the loaded parameters as the current configuration before the callback is set, so the
+  // first callback (which setCallback() makes at once) changes nothing.
+  reconfigure_server_->updateConfig(configFromParams(params));
+  reconfigure_server_->setCallback(
+      boost::bind(&ReconstructionNodelet::reconfigureCb, this, boost::placeholders::_1,
+                  boost::placeholders::_2));
+  NODELET_INFO("ready (%s input, %s sync, queue %d); waiting for subscribers",
+               toString(params.rectify.mode).c_str(),
+               ros_params.approximate_sync ? "approximate" : "exact", ros_params.queue_size);
+}
+
+void ReconstructionNodelet::reconfigureCb(EndoStereoConfig& config, uint32_t /*level*/) {
+  if (!reconstruction_) return;
+  const PipelineParams current = reconstruction_->pipelineParams();
+  PipelineParams next;
+  std::string e = paramsFromConfig(config, current, &next);
+  if (e.empty()) e = reconstruction_->setPipelineParams(next);  // validates
+  if (!e.empty()) {
+    NODELET_ERROR("reconfigure refused, parameters unchanged: %s", e.c_str());
+    // The server reports the config back after this callback: show the values in use.
+    config = configFromParams(current, config);
+    return;
+  }
+  NODELET_INFO("reconfigured; the new parameters apply from the next frame");
+}
+
+}  // namespace endo_stereo
+
+PLUGINLIB_EXPORT_CLASS(endo_stereo::ReconstructionNodelet, nodelet::Nodelet)

@@ -1,0 +1,702 @@
+// endo_stereo_bench: scores our matcher and its peers (OpenCV StereoBM, StereoSGBM and
+// cv::stereo::QuasiDenseStereo) on the same frames in the same run, times them, measures peak
+// memory, and sweeps the precision-density trade-off. `make bench` runs it (scripts/bench.sh).
+//
+// Protocol (evaluation.hpp, the Middlebury convention): error rates bad1 / bad2 count the pixels a
+// method output within the nonocc mask; density = output pixels / ground-truth pixels there.
+// Timings are medians of repeated runs, methods interleaved within each repetition so that a
+// change of machine load affects all of them alike.
+#include <sys/resource.h>
+#include <sys/stat.h>
+#include <sys/wait.h>
+#include <spawn.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <limits>
+#include <map>
+#include <memory>
+#include <string>
+#include <vector>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <opencv2/stereo/quasi_dense_stereo.hpp>
+
+#include "endo_stereo/core/evaluation.hpp"
+#include "endo_stereo/core/image_io.hpp"
+#include "endo_stereo/core/matcher.hpp"
+#include "endo_stereo/core/params_io.hpp"
+#include "json_writer.hpp"
+#include "surgical_scene.hpp"
+#include "synthetic_scene.hpp"
+
+extern char** environ;
+
+namespace {
+
+using endo_stereo::tools::JsonWriter;
+using Clock = std::chrono::steady_clock;
+
+constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+const char* kUsage = R"(endo_stereo_bench - score and time endo_stereo against OpenCV's matchers
+
+Usage: endo_stereo_bench [options]
+  --root DIR        repository root (presets in DIR/config; default: the source tree it was built from)
+  --data DIR        Middlebury scenes (default: ROOT/../shared/data/middlebury)
+  --repeats N       timed repetitions per method and scene, median reported (default 5)
+  --json FILE       machine-readable results (default: ROOT/docs/benchmark_results.json)
+  --curve FILE      precision-density sweep as CSV (default: ROOT/docs/precision_density.csv)
+  --quick           1 repetition, a short sweep, no memory probe (a smoke test)
+  --help
+)";
+
+struct Options {
+  std::string root = ES_SOURCE_DIR;
+  std::string data;
+  std::string json;
+  std::string curve;
+  int repeats = 5;
+  bool quick = false;
+};
+
+double msSince(Clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::numeric_limits<double>::quiet_NaN();
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+bool dirExists(const std::string& path) {
+  struct stat st;
+  return ::stat(path.c_str(), &st) == 0 && S_ISDIR(st.st_mode);
+}
+
+// --- the methods -----------------------------------------------------------------------------
+
+/// A scene as every method sees it: gray rectified pair, ground truth, masks, the search range.
+struct Scene {
+  std::string name;
+  cv::Mat left, right;  // CV_8UC1
+  cv::Mat gt;           // CV_32FC1, NaN unknown
+  cv::Mat nonocc;       // CV_8UC1, 255 evaluated
+  cv::Mat disc;         // CV_8UC1, 255 near discontinuities (may be empty)
+  int min_disparity = 0;
+  int num_disparities = 16;  // multiple of 16 (SGBM's and BM's granularity)
+};
+
+/// One matcher under test. compute() must leave a CV_32FC1 disparity with NaN = no output.
+struct Method {
+  std::string name;
+  std::function<void(const Scene&)> prepare;  // build the object for this scene (not timed)
+  std::function<void(const Scene&, cv::Mat&)> compute;
+};
+
+cv::Mat fromFixedPoint(const cv::Mat& disp16, int min_disparity) {
+  // BM/SGBM write (min_disparity - 1) * 16 for "no disparity".
+  cv::Mat out(disp16.size(), CV_32FC1);
+  for (int y = 0; y < disp16.rows; ++y) {
+    const int16_t* s = disp16.ptr<int16_t>(y);
+    float* d = out.ptr<float>(y);
+    for (int x = 0; x < disp16.cols; ++x) {
+      d[x] = s[x] < min_disparity * 16 ? kNaN : s[x] / 16.0f;
+    }
+  }
+  return out;
+}
+
+endo_stereo::PipelineParams loadPreset(const std::string& root, const std::string& name,
+                                       std::string* note) {
+  endo_stereo::PipelineParams p;
+  const std::string path = root + "/config/" + name + ".yaml";
+  if (!std::ifstream(path)) {
+    *note = "preset " + path + " not found: built-in defaults used";
+    return p;
+  }
+  const std::string err = endo_stereo::loadPipelineParams(path, p);
+  if (!err.empty()) *note = "preset " + path + ": " + err + " (built-in defaults used)";
+  return p;
+}
+
+Method ourMethod(const std::string& name, const endo_stereo::PipelineParams& preset,
+                 int threads = 0, double delta_min = -1.0) {
+  auto matcher = std::make_shared<std::unique_ptr<endo_stereo::RobustMatcher>>();
+  auto result = std::make_shared<endo_stereo::MatchResult>();
+  Method m;
+  m.name = name;
+  m.prepare = [=](const Scene& s) {
+    endo_stereo::MatcherParams mp = preset.matcher;
+    mp.min_disparity = s.min_disparity;
+    mp.max_disparity = s.min_disparity + s.num_disparities - 1;
+    mp.num_threads = threads;
+    if (delta_min >= 0) mp.delta_min = delta_min;
+    *matcher = std::make_unique<endo_stereo::RobustMatcher>(mp, preset.filter);
+  };
+  m.compute = [=](const Scene& s, cv::Mat& disparity) {
+    (*matcher)->compute(s.left, s.right, *result);
+    disparity = result->disparity;
+  };
+  return m;
+}
+
+cv::Ptr<cv::StereoSGBM> makeSgbm(int min_disparity, int num_disparities, int uniqueness = 10,
+                                 int mode = cv::StereoSGBM::MODE_SGBM) {
+  // The settings of OpenCV's samples/cpp/stereo_match.cpp, with blockSize 5 (issue 2).
+  const int bs = 5;
+  return cv::StereoSGBM::create(min_disparity, num_disparities, bs, 8 * bs * bs, 32 * bs * bs,
+                                /*disp12MaxDiff=*/1, /*preFilterCap=*/63, uniqueness,
+                                /*speckleWindowSize=*/100, /*speckleRange=*/32, mode);
+}
+
+Method sgbmMethod(const std::string& name, int uniqueness = 10,
+                  int mode = cv::StereoSGBM::MODE_SGBM) {
+  auto sgbm = std::make_shared<cv::Ptr<cv::StereoSGBM>>();
+  auto raw = std::make_shared<cv::Mat>();
+  Method m;
+  m.name = name;
+  m.prepare = [=](const Scene& s) {
+    *sgbm = makeSgbm(s.min_disparity, s.num_disparities, uniqueness, mode);
+  };
+  m.compute = [=](const Scene& s, cv::Mat& disparity) {
+    (*sgbm)->compute(s.left, s.right, *raw);
+    disparity = fromFixedPoint(*raw, s.min_disparity);
+  };
+  return m;
+}
+
+Method bmMethod() {
+  auto bm = std::make_shared<cv::Ptr<cv::StereoBM>>();
+  auto raw = std::make_shared<cv::Mat>();
+  Method m;
+  m.name = "OpenCV BM";
+  m.prepare = [=](const Scene& s) {
+    // samples/cpp/stereo_match.cpp settings (blockSize 9).
+    *bm = cv::StereoBM::create(s.num_disparities, 9);
+    (*bm)->setMinDisparity(s.min_disparity);
+    (*bm)->setPreFilterCap(31);
+    (*bm)->setTextureThreshold(10);
+    (*bm)->setUniquenessRatio(15);
+    (*bm)->setSpeckleWindowSize(100);
+    (*bm)->setSpeckleRange(32);
+    (*bm)->setDisp12MaxDiff(1);
+  };
+  m.compute = [=](const Scene& s, cv::Mat& disparity) {
+    (*bm)->compute(s.left, s.right, *raw);
+    disparity = fromFixedPoint(*raw, s.min_disparity);
+  };
+  return m;
+}
+
+Method quasiDenseMethod() {
+  auto qds = std::make_shared<cv::Ptr<cv::stereo::QuasiDenseStereo>>();
+  Method m;
+  m.name = "OpenCV QuasiDense";
+  m.prepare = [=](const Scene& s) {
+    *qds = cv::stereo::QuasiDenseStereo::create(s.left.size());  // default parameters
+  };
+  m.compute = [=](const Scene& s, cv::Mat& disparity) {
+    (*qds)->process(s.left, s.right);
+    cv::Mat d = (*qds)->getDisparity();
+    d.convertTo(disparity, CV_32F);
+    // Unmatched pixels come back as 0: not output. (Every scene here has disparities >= 1, so
+    // a true disparity of 0 is not lost.)
+    disparity.setTo(kNaN, d == 0);
+  };
+  return m;
+}
+
+// --- scenes ----------------------------------------------------------------------------------
+
+int roundUp16(int n) { return (n + 15) / 16 * 16; }
+
+Scene fromMiddlebury(const endo_stereo::MiddleburyScene& m) {
+  Scene s;
+  s.name = m.name;
+  s.left = m.left;
+  s.right = m.right;
+  s.gt = m.gt;
+  s.nonocc = m.nonocc;
+  s.disc = m.disc;
+  s.min_disparity = 0;
+  s.num_disparities = roundUp16(m.max_disp + 1);
+  return s;
+}
+
+cv::Mat toGray(const cv::Mat& bgr) {
+  cv::Mat g;
+  cv::cvtColor(bgr, g, cv::COLOR_BGR2GRAY);  // BT.601 luma, as the pipeline converts
+  return g;
+}
+
+// Pixels within 2 px of a ground-truth disparity step > 1 px, inside the evaluated mask: the
+// Middlebury "disc" mask, rebuilt for scenes that come without one.
+cv::Mat discontinuityMask(const cv::Mat& gt, const cv::Mat& nonocc) {
+  cv::Mat step(gt.size(), CV_8UC1, cv::Scalar(0));
+  for (int y = 0; y < gt.rows; ++y) {
+    for (int x = 0; x < gt.cols; ++x) {
+      const float d = gt.at<float>(y, x);
+      const float r = x + 1 < gt.cols ? gt.at<float>(y, x + 1) : d;
+      const float b = y + 1 < gt.rows ? gt.at<float>(y + 1, x) : d;
+      if (std::abs(d - r) > 1.f || std::abs(d - b) > 1.f) step.at<uint8_t>(y, x) = 255;
+    }
+  }
+  cv::dilate(step, step, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(5, 5)));
+  cv::Mat disc;
+  cv::bitwise_and(step, nonocc, disc);
+  return disc;
+}
+
+Scene surgicalScene(int width, int height, int num_disparities, int frame_index) {
+  endo_stereo::SurgicalSceneParams p;
+  p.width = width;
+  p.height = height;
+  p.seed = 7;
+  endo_stereo::SurgicalScene scene(p);
+  endo_stereo::SurgicalFrame f;
+  scene.render(frame_index, f);
+  Scene s;
+  s.name = "surgical " + std::to_string(width) + "x" + std::to_string(height);
+  s.left = toGray(f.left);
+  s.right = toGray(f.right);
+  s.gt = f.gt_disparity.clone();
+  s.nonocc = f.visibility == endo_stereo::kVisibleBoth;
+  s.disc = discontinuityMask(s.gt, s.nonocc);
+  // A fixed-width range (num_disparities) placed around the scene's disparities.
+  double lo = 0, hi = 0;
+  cv::minMaxLoc(s.gt, &lo, &hi, nullptr, nullptr, s.nonocc);
+  const double centre = 0.5 * (lo + hi);
+  s.min_disparity = static_cast<int>(std::floor(centre - num_disparities / 2.0));
+  if (hi - lo > num_disparities - 8) {
+    std::cerr << "note: " << s.name << " disparities span " << hi - lo << " px, more than "
+              << num_disparities << " - 8\n";
+  }
+  return s;
+}
+
+Scene slantedScene() {
+  endo_stereo::SyntheticSceneParams p;
+  p.width = 640;
+  p.height = 480;
+  p.seed = 11;
+  p.base_disparity_px = 20.0;
+  p.slope_x = 0.02;
+  p.slope_y = 0.01;
+  p.curvature = 2e-5;
+  p.noise_stdev = 2.0;
+  p.occluder = cv::Rect(250, 150, 140, 160);
+  p.occluder_disparity_px = 40.0;
+  p.textureless = cv::Rect(60, 330, 90, 90);
+  p.saturated = cv::Rect(480, 60, 80, 60);
+  const endo_stereo::SyntheticScene syn = endo_stereo::makeSyntheticScene(p);
+  Scene s;
+  s.name = "synthetic slanted+occluder 640x480";
+  s.left = syn.left;
+  s.right = syn.right;
+  s.gt = syn.disparity;
+  s.nonocc = syn.occluded == 0;
+  s.disc = discontinuityMask(s.gt, s.nonocc);
+  s.min_disparity = 0;
+  s.num_disparities = 64;
+  return s;
+}
+
+// --- runs ------------------------------------------------------------------------------------
+
+struct Row {
+  std::string scene, method;
+  endo_stereo::DisparityScore nonocc, disc;
+  double median_ms = 0;
+  std::vector<double> times_ms;
+  double ratio_sgbm = 0;  // median time / SGBM's median time on the same scene
+};
+
+std::vector<Row> runScene(const Scene& s, std::vector<Method>& methods, int repeats) {
+  std::vector<Row> rows(methods.size());
+  std::vector<cv::Mat> outputs(methods.size());
+  for (size_t m = 0; m < methods.size(); ++m) methods[m].prepare(s);
+  for (int r = 0; r < repeats; ++r) {
+    for (size_t m = 0; m < methods.size(); ++m) {
+      const auto t = Clock::now();
+      methods[m].compute(s, outputs[m]);
+      rows[m].times_ms.push_back(msSince(t));
+    }
+  }
+  double sgbm_ms = 0;
+  for (size_t m = 0; m < methods.size(); ++m) {
+    rows[m].scene = s.name;
+    rows[m].method = methods[m].name;
+    rows[m].median_ms = median(rows[m].times_ms);
+    rows[m].nonocc = endo_stereo::scoreDisparity(outputs[m], s.gt, s.nonocc);
+    if (!s.disc.empty()) rows[m].disc = endo_stereo::scoreDisparity(outputs[m], s.gt, s.disc);
+    if (methods[m].name == "OpenCV SGBM") sgbm_ms = rows[m].median_ms;
+  }
+  for (Row& r : rows) r.ratio_sgbm = sgbm_ms > 0 ? r.median_ms / sgbm_ms : 0;
+  return rows;
+}
+
+void printRows(const std::vector<Row>& rows) {
+  std::printf("| scene | method | bad1 %% | bad2 %% | density %% | bad2 near edges %% | "
+              "median ms | time / SGBM |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
+  for (const Row& r : rows) {
+    std::printf("| %s | %s | %.2f | %.2f | %.1f | %.2f | %.1f | %.2f |\n", r.scene.c_str(),
+                r.method.c_str(), 100 * r.nonocc.bad1, 100 * r.nonocc.bad2, 100 * r.nonocc.density,
+                100 * r.disc.bad2, r.median_ms, r.ratio_sgbm);
+  }
+  std::fflush(stdout);
+}
+
+void writeScore(JsonWriter& j, const endo_stereo::DisparityScore& s) {
+  j.beginObject();
+  j.key("bad1").value(s.bad1).key("bad2").value(s.bad2).key("density").value(s.density);
+  j.key("mean_abs_error_px").value(s.mean_abs_error);
+  j.key("n_out").value(s.n_out).key("n_gt").value(s.n_gt);
+  j.key("n_bad1").value(s.n_bad1).key("n_bad2").value(s.n_bad2);
+  j.endObject();
+}
+
+void writeRows(JsonWriter& j, const std::vector<Row>& rows) {
+  j.beginArray();
+  for (const Row& r : rows) {
+    j.beginObject();
+    j.key("scene").value(r.scene).key("method").value(r.method);
+    j.key("nonocc");
+    writeScore(j, r.nonocc);
+    j.key("disc");
+    writeScore(j, r.disc);
+    j.key("median_ms").value(r.median_ms).key("time_over_sgbm").value(r.ratio_sgbm);
+    j.key("times_ms").beginArray();
+    for (double t : r.times_ms) j.value(t);
+    j.endArray();
+    j.endObject();
+  }
+  j.endArray();
+}
+
+// --- peak memory: a fresh child process runs only our matcher -------------------------------
+
+// Child side: `--rss-probe LEFT RIGHT MIN MAX MODE [GT.pfm]`, MODE full | prior. Loads the pair,
+// matches it three times and exits; the parent reads the child's peak RSS from wait4().
+int rssProbe(int argc, char** argv) {
+  if (argc < 7) return 2;
+  const cv::Mat left = cv::imread(argv[2], cv::IMREAD_GRAYSCALE);
+  const cv::Mat right = cv::imread(argv[3], cv::IMREAD_GRAYSCALE);
+  if (left.empty() || right.empty()) return 3;
+  const std::string mode = argv[6];
+  endo_stereo::MatcherParams mp;
+  mp.min_disparity = std::atoi(argv[4]);
+  mp.max_disparity = std::atoi(argv[5]);
+  if (mode == "sgbm") {
+    auto sgbm = makeSgbm(mp.min_disparity, mp.max_disparity - mp.min_disparity + 1);
+    cv::Mat raw;
+    for (int i = 0; i < 3; ++i) sgbm->compute(left, right, raw);
+    return 0;
+  }
+  endo_stereo::RobustMatcher matcher(mp, endo_stereo::PostFilterParams{});
+  endo_stereo::MatchResult result;
+  endo_stereo::SearchRange range;
+  if (mode == "prior") {
+    if (argc < 8) return 2;
+    const cv::Mat gt = endo_stereo::readPfm(argv[7]);
+    if (gt.empty()) return 3;
+    cv::Mat rounded;
+    gt.convertTo(rounded, CV_16S);  // rounds to nearest
+    range.lo = rounded - 4;
+    range.hi = rounded + 4;
+  }
+  for (int i = 0; i < 3; ++i) matcher.compute(left, right, result, range.empty() ? nullptr : &range);
+  return 0;
+}
+
+// Parent side. @return peak RSS in MiB, or NaN when the probe failed.
+double probePeakRss(const std::vector<std::string>& args) {
+  std::vector<std::string> all = {"/proc/self/exe", "--rss-probe"};
+  all.insert(all.end(), args.begin(), args.end());
+  std::vector<char*> argv;
+  for (auto& a : all) argv.push_back(const_cast<char*>(a.c_str()));
+  argv.push_back(nullptr);
+  char exe[4096];
+  const ssize_t n = ::readlink("/proc/self/exe", exe, sizeof(exe) - 1);
+  if (n <= 0) return std::numeric_limits<double>::quiet_NaN();
+  exe[n] = '\0';
+  pid_t pid = 0;
+  if (posix_spawn(&pid, exe, nullptr, nullptr, argv.data(), environ) != 0) {
+    return std::numeric_limits<double>::quiet_NaN();
+  }
+  int status = 0;
+  struct rusage usage {};
+  if (::wait4(pid, &status, 0, &usage) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+    return std::numeric_limits<double>::quiet_NaN();
+  }
+  return usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
+}
+
+// --- machine ---------------------------------------------------------------------------------
+
+std::string cpuModel() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("model name", 0) == 0) {
+      const size_t colon = line.find(':');
+      if (colon != std::string::npos) return line.substr(colon + 2);
+    }
+  }
+  return "unknown";
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc > 1 && std::string(argv[1]) == "--rss-probe") return rssProbe(argc, argv);
+
+  Options o;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto need = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << "endo_stereo_bench: " << a << " needs a value\n";
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--help" || a == "-h") {
+      std::cout << kUsage;
+      return 0;
+    } else if (a == "--root") {
+      o.root = need();
+    } else if (a == "--data") {
+      o.data = need();
+    } else if (a == "--repeats") {
+      o.repeats = std::atoi(need().c_str());
+      if (o.repeats < 1) {
+        std::cerr << "endo_stereo_bench: --repeats must be >= 1\n";
+        return 2;
+      }
+    } else if (a == "--json") {
+      o.json = need();
+    } else if (a == "--curve") {
+      o.curve = need();
+    } else if (a == "--quick") {
+      o.quick = true;
+    } else {
+      std::cerr << "endo_stereo_bench: unknown argument '" << a << "' (see --help)\n";
+      return 2;
+    }
+  }
+  if (o.quick) o.repeats = 1;
+  if (o.data.empty()) o.data = o.root + "/../shared/data/middlebury";
+  if (o.json.empty()) o.json = o.root + "/docs/benchmark_results.json";
+  if (o.curve.empty()) o.curve = o.root + "/docs/precision_density.csv";
+
+  const int hw_threads = cv::getNumThreads();
+  std::time_t now = std::time(nullptr);
+  char date[64];
+  std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M %Z", std::localtime(&now));
+  std::printf("# endo_stereo benchmark\n\nmachine: %s, %u logical CPUs, OpenCV %s with %d threads; "
+              "%s; %d repetitions per timing (median)\n\n",
+              cpuModel().c_str(), std::max(1u, static_cast<unsigned>(sysconf(_SC_NPROCESSORS_ONLN))),
+              CV_VERSION, hw_threads, date, o.repeats);
+
+  std::string note_default, note_paper;
+  const endo_stereo::PipelineParams preset_default = loadPreset(o.root, "default", &note_default);
+  const endo_stereo::PipelineParams preset_paper = loadPreset(o.root, "paper", &note_paper);
+  if (!note_default.empty()) std::printf("WARNING: %s\n", note_default.c_str());
+  if (!note_paper.empty()) std::printf("WARNING: %s\n", note_paper.c_str());
+
+  JsonWriter j;
+  j.beginObject();
+  j.key("date").value(date);
+  j.key("cpu").value(cpuModel());
+  j.key("opencv").value(CV_VERSION);
+  j.key("opencv_threads").value(hw_threads);
+  j.key("repeats").value(o.repeats);
+
+  // --- 1. accuracy and speed on scenes with ground truth --------------------------------------
+  std::vector<Scene> scenes;
+  bool have_middlebury = false;
+  if (!dirExists(o.data)) {
+    std::printf("SKIP Middlebury: data not found at %s (expected ../shared/data/middlebury "
+                "beside the repository); scoring synthetic scenes only\n\n",
+                o.data.c_str());
+  } else {
+    for (const char* name : {"tsukuba", "venus", "teddy"}) {
+      try {
+        scenes.push_back(fromMiddlebury(endo_stereo::loadMiddleburyScene(o.data + "/" + name)));
+        have_middlebury = true;
+      } catch (const std::exception& ex) {
+        std::printf("SKIP Middlebury %s: %s\n", name, ex.what());
+      }
+    }
+  }
+  const size_t num_middlebury = scenes.size();
+  scenes.push_back(slantedScene());
+  scenes.push_back(surgicalScene(960, 540, 64, 0));
+
+  std::vector<Method> methods = {ourMethod("ours (default)", preset_default),
+                                 ourMethod("ours (paper)", preset_paper), bmMethod(),
+                                 sgbmMethod("OpenCV SGBM"), quasiDenseMethod()};
+  std::printf("## Accuracy (nonocc mask; errors among output pixels) and time\n\n");
+  std::vector<Row> all_rows;
+  for (const Scene& s : scenes) {
+    std::fprintf(stderr, "scoring %s ...\n", s.name.c_str());
+    const std::vector<Row> rows = runScene(s, methods, o.repeats);
+    all_rows.insert(all_rows.end(), rows.begin(), rows.end());
+  }
+  printRows(all_rows);
+  j.key("middlebury_found").value(have_middlebury);
+  j.key("accuracy");
+  writeRows(j, all_rows);
+
+  // --- 2. the 960x540, 64-disparity timing case ----------------------------------------------
+  const Scene& big = scenes.back();
+  std::printf("\n## Timing at %dx%d, %d disparities [%d, %d] (%s)\n\n", big.left.cols,
+              big.left.rows, big.num_disparities, big.min_disparity,
+              big.min_disparity + big.num_disparities - 1, big.name.c_str());
+  std::vector<Method> timing = {ourMethod("ours full search, 2 threads", preset_default, 2),
+                                ourMethod("ours full search, 1 thread", preset_default, 1),
+                                sgbmMethod("OpenCV SGBM"),
+                                sgbmMethod("OpenCV SGBM 3WAY", 10, cv::StereoSGBM::MODE_SGBM_3WAY)};
+  // Ours with a per-pixel range of +-4 px around the known disparity (what the temporal priors
+  // give in steady state).
+  {
+    endo_stereo::SearchRange range;
+    cv::Mat rounded;
+    big.gt.convertTo(rounded, CV_16S);
+    range.lo = rounded - 4;
+    range.hi = rounded + 4;
+    for (int threads : {2, 1}) {
+      auto matcher = std::make_shared<std::unique_ptr<endo_stereo::RobustMatcher>>();
+      auto result = std::make_shared<endo_stereo::MatchResult>();
+      Method m;
+      m.name = std::string("ours +-4 px range, ") + (threads == 2 ? "2 threads" : "1 thread");
+      m.prepare = [=](const Scene& s) {
+        endo_stereo::MatcherParams mp = preset_default.matcher;
+        mp.min_disparity = s.min_disparity;
+        mp.max_disparity = s.min_disparity + s.num_disparities - 1;
+        mp.num_threads = threads;
+        *matcher = std::make_unique<endo_stereo::RobustMatcher>(mp, preset_default.filter);
+      };
+      m.compute = [=](const Scene& s, cv::Mat& disparity) {
+        (*matcher)->compute(s.left, s.right, *result, &range);
+        disparity = result->disparity;
+      };
+      timing.push_back(m);
+    }
+  }
+  const int timing_repeats = std::max(o.repeats, o.quick ? 1 : 7);
+  const std::vector<Row> timing_rows = runScene(big, timing, timing_repeats);
+  std::printf("| method | median ms | min ms | time / SGBM | bad2 %% | density %% |\n"
+              "|---|---:|---:|---:|---:|---:|\n");
+  for (const Row& r : timing_rows) {
+    std::printf("| %s | %.1f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(), r.median_ms,
+                *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
+                100 * r.nonocc.bad2, 100 * r.nonocc.density);
+  }
+  j.key("timing_960x540");
+  writeRows(j, timing_rows);
+
+  // Peak memory of a process running only our matcher at this size (a fresh child process, so
+  // the benchmark's own scenes do not count), and of SGBM for reference.
+  if (!o.quick) {
+    char tmpl[] = "/tmp/es_bench_XXXXXX";
+    const char* dir = ::mkdtemp(tmpl);
+    if (dir) {
+      const std::string d(dir);
+      cv::imwrite(d + "/l.png", big.left);
+      cv::imwrite(d + "/r.png", big.right);
+      endo_stereo::writePfm(d + "/gt.pfm", big.gt);
+      const std::string lo = std::to_string(big.min_disparity);
+      const std::string hi = std::to_string(big.min_disparity + big.num_disparities - 1);
+      const double rss_full = probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "full"});
+      const double rss_prior =
+          probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "prior", d + "/gt.pfm"});
+      const double rss_sgbm = probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
+      std::printf("\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
+                  "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB\n",
+                  big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm);
+      j.key("peak_rss_mib").beginObject();
+      j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
+      j.key("sgbm").value(rss_sgbm);
+      j.endObject();
+      for (const char* f : {"/l.png", "/r.png", "/gt.pfm"}) std::remove((d + f).c_str());
+      ::rmdir(dir);
+    }
+  }
+
+  // --- 3. precision-density: our main knob (delta_min) beside SGBM's uniquenessRatio ----------
+  std::printf("\n## Precision-density sweep (%s)\n\n",
+              have_middlebury ? "pooled over the Middlebury scenes, nonocc"
+                              : "synthetic scenes only: Middlebury missing");
+  const std::vector<double> deltas =
+      o.quick ? std::vector<double>{0.05, 0.2}
+              : std::vector<double>{0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6};
+  const std::vector<int> uniqueness =
+      o.quick ? std::vector<int>{5, 20} : std::vector<int>{0, 5, 10, 15, 20, 30, 40, 50, 60};
+  const size_t sweep_scenes = have_middlebury ? num_middlebury : scenes.size();
+  std::ofstream csv(o.curve);
+  csv << "method,knob,value,scene,bad1,bad2,density,n_out,n_gt\n";
+  std::printf("| method | knob | value | bad2 %% | bad1 %% | density %% |\n"
+              "|---|---|---:|---:|---:|---:|\n");
+  j.key("sweep").beginArray();
+  auto sweep = [&](const std::string& method, const std::string& knob, double value,
+                   Method m) {
+    int64_t out = 0, gt = 0, bad1 = 0, bad2 = 0;
+    for (size_t i = 0; i < sweep_scenes; ++i) {
+      const Scene& s = scenes[i];
+      m.prepare(s);
+      cv::Mat d;
+      m.compute(s, d);
+      const endo_stereo::DisparityScore sc = endo_stereo::scoreDisparity(d, s.gt, s.nonocc);
+      out += sc.n_out;
+      gt += sc.n_gt;
+      bad1 += sc.n_bad1;
+      bad2 += sc.n_bad2;
+      csv << method << "," << knob << "," << value << "," << s.name << "," << sc.bad1 << ","
+          << sc.bad2 << "," << sc.density << "," << sc.n_out << "," << sc.n_gt << "\n";
+    }
+    const double b1 = out ? double(bad1) / out : 0, b2 = out ? double(bad2) / out : 0;
+    const double dens = gt ? double(out) / gt : 0;
+    csv << method << "," << knob << "," << value << ",pooled," << b1 << "," << b2 << "," << dens
+        << "," << out << "," << gt << "\n";
+    std::printf("| %s | %s | %g | %.2f | %.2f | %.1f |\n", method.c_str(), knob.c_str(), value,
+                100 * b2, 100 * b1, 100 * dens);
+    std::fflush(stdout);
+    j.beginObject();
+    j.key("method").value(method).key("knob").value(knob).key("value").value(value);
+    j.key("bad1").value(b1).key("bad2").value(b2).key("density").value(dens);
+    j.endObject();
+  };
+  for (double dm : deltas) {
+    sweep("ours (default)", "delta_min", dm, ourMethod("ours", preset_default, 0, dm));
+  }
+  for (int u : uniqueness) {
+    sweep("OpenCV SGBM", "uniquenessRatio", u, sgbmMethod("OpenCV SGBM", u));
+  }
+  j.endArray();
+  j.endObject();
+
+  std::ofstream json(o.json);
+  json << j.str();
+  if (!json) {
+    std::cerr << "endo_stereo_bench: cannot write " << o.json << "\n";
+    return 1;
+  }
+  std::printf("\nresults: %s\nsweep: %s\n", o.json.c_str(), o.curve.c_str());
+  return 0;
+}

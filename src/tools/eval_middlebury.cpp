@@ -1,0 +1,263 @@
+// endo_stereo_eval: scores the robust matcher on Middlebury-layout scenes (nonocc mask), for
+// tuning the presets and recording their figures. Not the benchmark (that one also runs OpenCV's
+// matchers): this tool is the matcher engineer's instrument.
+//
+//   endo_stereo_eval [--data DIR] [--params FILE.yaml] [--set section.field=value]...
+//                    [--scenes tsukuba,venus,teddy] [--sweep field=v1,v2,...] [--detail]
+//
+// DIR holds one folder per scene (default ../shared/data/middlebury relative to the repository).
+// Only the `matcher:` and `filter:` sections of FILE are read. The search range of a scene is
+// 0 .. max disparity from its info.txt, unless --set matcher.max_disparity=... is given.
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <iostream>
+#include <map>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <opencv2/imgcodecs.hpp>
+#include <yaml-cpp/yaml.h>
+
+#include "endo_stereo/core/evaluation.hpp"
+#include "endo_stereo/core/matcher.hpp"
+
+namespace es = endo_stereo;
+
+namespace {
+
+bool parseBool(const std::string& v) { return v == "true" || v == "1" || v == "yes" || v == "on"; }
+
+// Sets one field by name; returns "" or an error naming the key.
+std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::string& key,
+                     const std::string& v) {
+  const std::string sec = key.substr(0, key.find('.'));
+  const std::string name = key.find('.') == std::string::npos ? key : key.substr(key.find('.') + 1);
+  try {
+    if (sec == "matcher") {
+      if (name == "min_disparity") m.min_disparity = std::stoi(v);
+      else if (name == "max_disparity") m.max_disparity = std::stoi(v);
+      else if (name == "window_min_px") m.window_min_px = std::stoi(v);
+      else if (name == "window_step_px") m.window_step_px = std::stoi(v);
+      else if (name == "window_max_px") m.window_max_px = std::stoi(v);
+      else if (name == "gamma_min") m.gamma_min = std::stod(v);
+      else if (name == "delta_min") m.delta_min = std::stod(v);
+      else if (name == "epsilon_px") m.epsilon_px = std::stod(v);
+      else if (name == "subpixel") m.subpixel = parseBool(v);
+      else if (name == "num_threads") m.num_threads = std::stoi(v);
+      else if (name == "edge_window_max_px") m.edge_window_max_px = std::stoi(v);
+      else if (name == "edge_disparity_jump_px") m.edge_disparity_jump_px = std::stod(v);
+      else return "unknown key " + key;
+    } else if (sec == "filter") {
+      if (name == "remove_outliers") f.remove_outliers = parseBool(v);
+      else if (name == "outlier_window_px") f.outlier_window_px = std::stoi(v);
+      else if (name == "outlier_disparity_tol_px") f.outlier_disparity_tol_px = std::stod(v);
+      else if (name == "outlier_min_share") f.outlier_min_share = std::stod(v);
+      else if (name == "fill_holes") f.fill_holes = parseBool(v);
+      else if (name == "fill_max_hole_px") f.fill_max_hole_px = std::stoi(v);
+      else return "unknown key " + key;
+    } else {
+      return "unknown section in " + key;
+    }
+  } catch (const std::exception&) {
+    return "bad value '" + v + "' for " + key;
+  }
+  return "";
+}
+
+std::string loadYaml(const std::string& path, es::MatcherParams& m, es::PostFilterParams& f) {
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const std::exception& e) {
+    return path + ": " + e.what();
+  }
+  for (const char* sec : {"matcher", "filter"}) {
+    if (!root[sec]) continue;
+    for (const auto& kv : root[sec]) {
+      const std::string err =
+          setField(m, f, std::string(sec) + "." + kv.first.as<std::string>(), kv.second.as<std::string>());
+      if (!err.empty()) return path + ": " + err;
+    }
+  }
+  return "";
+}
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  std::stringstream ss(s);
+  std::string item;
+  while (std::getline(ss, item, sep)) {
+    if (!item.empty()) out.push_back(item);
+  }
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  std::string data = std::string(ES_SOURCE_DIR) + "/../shared/data/middlebury";
+  std::vector<std::string> scenes = {"tsukuba", "venus", "teddy"};
+  es::MatcherParams mp;
+  es::PostFilterParams fp;
+  bool detail = false;
+  std::string dump_dir;
+  bool fixed_max = false;
+  std::string sweep_key;
+  std::vector<std::string> sweep_values{""};
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << "missing value after " << a << "\n";
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "--data") {
+      data = next();
+    } else if (a == "--params") {
+      const std::string err = loadYaml(next(), mp, fp);
+      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+    } else if (a == "--set") {
+      const std::string kv = next();
+      const size_t eq = kv.find('=');
+      const std::string err = eq == std::string::npos ? "expected key=value: " + kv
+                                                      : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
+      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      if (kv.rfind("matcher.max_disparity", 0) == 0) fixed_max = true;
+    } else if (a == "--scenes") {
+      scenes = split(next(), ',');
+    } else if (a == "--sweep") {
+      const std::string kv = next();
+      const size_t eq = kv.find('=');
+      if (eq == std::string::npos) { std::cerr << "--sweep key=v1,v2,...\n"; return 2; }
+      sweep_key = kv.substr(0, eq);
+      sweep_values = split(kv.substr(eq + 1), ',');
+    } else if (a == "--dump") {
+      dump_dir = next();
+    } else if (a == "--detail") {
+      detail = true;
+    } else {
+      std::cerr << "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
+                   "[--scenes a,b] [--sweep k=v1,v2] [--detail]\n";
+      return 2;
+    }
+  }
+  std::vector<es::MiddleburyScene> loaded;
+  for (const auto& name : scenes) {
+    try {
+      loaded.push_back(es::loadMiddleburyScene(data + "/" + name));
+    } catch (const std::exception& e) {
+      std::cerr << e.what() << "\n";
+      return 1;
+    }
+  }
+  std::printf("%-10s %-8s %7s %7s %8s %7s %8s %8s %8s\n", "sweep", "scene", "bad1%", "bad2%",
+              "density%", "mae", "disc_b2%", "ms", "valid");
+  for (const std::string& sv : sweep_values) {
+    es::MatcherParams m = mp;
+    es::PostFilterParams f = fp;
+    if (!sweep_key.empty()) {
+      const std::string err = setField(m, f, sweep_key, sv);
+      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+    }
+    double worst_b2 = 0, sum_b2 = 0, min_dens = 1;
+    for (const auto& s : loaded) {
+      es::MatcherParams ms = m;
+      if (!fixed_max) ms.max_disparity = s.max_disp;
+      std::string err = ms.validate();
+      if (err.empty()) err = f.validate();
+      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      es::RobustMatcher matcher(ms, f);
+      es::MatchResult r;
+      const auto t0 = std::chrono::steady_clock::now();
+      matcher.compute(s.left, s.right, r);
+      const double ms_taken =
+          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      const es::DisparityScore sc = es::scoreDisparity(r.disparity, s.gt, s.nonocc);
+      const es::DisparityScore dc = es::scoreDisparity(r.disparity, s.gt, s.disc);
+      std::printf("%-10s %-8s %7.2f %7.2f %8.1f %7.3f %8.2f %8.1f %8lld\n",
+                  sweep_key.empty() ? "-" : sv.c_str(), s.name.c_str(), 100 * sc.bad1,
+                  100 * sc.bad2, 100 * sc.density, sc.mean_abs_error, 100 * dc.bad2, ms_taken,
+                  static_cast<long long>(r.stats.valid_pixels));
+      worst_b2 = std::max(worst_b2, sc.bad2);
+      sum_b2 += sc.bad2;
+      min_dens = std::min(min_dens, sc.density);
+      if (!dump_dir.empty()) {
+        // Error map: grey = right (|e| <= 1), yellow = 1 < |e| <= 2, red = |e| > 2, blue = output
+        // outside the nonocc mask; rejected: magenta = edge, dark blue = peak gap, teal = left-right,
+        // orange = no peak, white = outlier, green = structure, black = not searched.
+        cv::Mat vis(s.gt.size(), CV_8UC3, cv::Scalar(0, 0, 0));
+        for (int y = 0; y < s.gt.rows; ++y) {
+          for (int x = 0; x < s.gt.cols; ++x) {
+            const float d = r.disparity.at<float>(y, x), g = s.gt.at<float>(y, x);
+            cv::Vec3b c(0, 0, 0);
+            if (!std::isnan(d)) {
+              if (!s.nonocc.at<uint8_t>(y, x) || std::isnan(g)) c = cv::Vec3b(255, 0, 0);
+              else if (std::fabs(d - g) > 2) c = cv::Vec3b(0, 0, 255);
+              else if (std::fabs(d - g) > 1) c = cv::Vec3b(0, 255, 255);
+              else c = cv::Vec3b(160, 160, 160);
+            } else {
+              const int code = r.code.at<uint8_t>(y, x);
+              if (code == es::kCodeRejectEdge) c = cv::Vec3b(255, 0, 255);
+              else if (code == es::kCodeRejectPeakGap) c = cv::Vec3b(120, 40, 0);
+              else if (code == es::kCodeRejectLeftRight) c = cv::Vec3b(120, 120, 0);
+              else if (code == es::kCodeNoPeak) c = cv::Vec3b(0, 100, 200);
+              else if (code == es::kCodeRejectOutlier) c = cv::Vec3b(255, 255, 255);
+              else if (code == es::kCodeRejectStructure) c = cv::Vec3b(0, 90, 0);
+            }
+            vis.at<cv::Vec3b>(y, x) = c;
+          }
+        }
+        cv::imwrite(dump_dir + "/" + s.name + "_" + (sv.empty() ? "run" : sv) + ".png", vis);
+      }
+      if (detail) {
+        // Per accepting window: count and bad2 within nonocc; rejection codes.
+        for (int k = 0; k < 16; ++k) {
+          int64_t n = 0, bad = 0;
+          for (int y = 0; y < s.gt.rows; ++y) {
+            for (int x = 0; x < s.gt.cols; ++x) {
+              if (!s.nonocc.at<uint8_t>(y, x) || std::isnan(s.gt.at<float>(y, x))) continue;
+              if (r.code.at<uint8_t>(y, x) != es::kCodeAcceptedBase + k) continue;
+              const float d = r.disparity.at<float>(y, x);
+              if (std::isnan(d)) continue;
+              ++n;
+              if (std::fabs(d - s.gt.at<float>(y, x)) > 2) ++bad;
+            }
+          }
+          if (n) std::printf("    window %2d: %7lld px, bad2 %.2f%%\n", ms.window_min_px + k * ms.window_step_px,
+                             static_cast<long long>(n), 100.0 * bad / n);
+        }
+        {
+          int64_t in_nonocc[32] = {0}, in_disc[32] = {0};
+          for (int y = 0; y < s.gt.rows; ++y) {
+            for (int x = 0; x < s.gt.cols; ++x) {
+              if (!s.nonocc.at<uint8_t>(y, x) || std::isnan(s.gt.at<float>(y, x))) continue;
+              const int c = std::min<int>(31, r.code.at<uint8_t>(y, x));
+              ++in_nonocc[c];
+              if (s.disc.at<uint8_t>(y, x)) ++in_disc[c];
+            }
+          }
+          std::printf("    nonocc codes (of which near disc):");
+          for (int c = 0; c < es::kNumRejectCodes; ++c) {
+            std::printf(" %d:%lld(%lld)", c, static_cast<long long>(in_nonocc[c]),
+                        static_cast<long long>(in_disc[c]));
+          }
+          std::printf("\n");
+        }
+        std::printf("    codes:");
+        for (int c = 0; c < es::kNumRejectCodes; ++c) {
+          std::printf(" %d:%lld", c, static_cast<long long>(r.stats.rejected[c]));
+        }
+        std::printf("\n");
+      }
+    }
+    std::printf("%-10s %-8s worst bad2 %.2f%%  mean bad2 %.2f%%  min density %.1f%%\n",
+                sweep_key.empty() ? "-" : sv.c_str(), "ALL", 100 * worst_b2,
+                100 * sum_b2 / loaded.size(), 100 * min_dens);
+  }
+  return 0;
+}

@@ -1,0 +1,332 @@
+// endo_stereo_temporal_bench: the temporal targets of issue 4 on a generated surgical sequence.
+// For every frame of a synthetic 960x540 sequence (instrument, highlights, noise) it runs, on the
+// same rectified gray frames in the same process:
+//   1. RobustMatcher with temporal priors (TemporalTracker: priors, fusion, coverage),
+//   2. RobustMatcher without priors (full range every frame; its own coverage),
+//   3. OpenCV StereoSGBM (MODE_SGBM, blockSize 5, the same disparity range),
+// and reports steady-state time per frame, bad2 among output pixels (against the exact ground
+// truth, pixels seen by both cameras), density, and the share of central-region pixels updated
+// within 10 frames. Writes a coverage picture and a fused disparity frame beside its input.
+// `endo_stereo_temporal_bench --help` lists the flags.
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <fstream>
+#include <iostream>
+#include <string>
+#include <vector>
+
+#include <opencv2/calib3d.hpp>
+#include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "endo_stereo/core/image_io.hpp"
+#include "endo_stereo/core/matcher.hpp"
+#include "endo_stereo/core/params_io.hpp"
+#include "endo_stereo/core/temporal.hpp"
+#include "surgical_scene.hpp"
+
+namespace {
+
+const char* kUsage = R"(endo_stereo_temporal_bench - temporal priors, fusion and coverage on a synthetic surgical sequence
+
+Usage:
+  endo_stereo_temporal_bench [options]
+
+Options:
+  --frames N          frames (default 100)
+  --warmup N          first frames left out of the steady-state timing (default 5)
+  --width W --height H  image size (default 960 x 540)
+  --seed S            scene seed (default 1)
+  --noise SIGMA       sensor noise, grey levels (default 1.5)
+  --params FILE.yaml  pipeline preset (matcher, filter, temporal sections are used)
+  --set KEY=VALUE     override one parameter (repeatable), e.g. --set temporal.prior_radius_px=3
+  --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
+                      SGBM's MODE_SGBM runs on one thread whatever this says.
+  --no-sgbm           skip the SGBM baseline
+  --out DIR           write coverage.png, fused.png (input | this frame | fused) and
+                      results.json there (default: no files)
+  --picture-frame N   frame shown in fused.png (default: the last)
+  -h, --help          this text
+)";
+
+struct Score {
+  int64_t output = 0, bad = 0, gt_pixels = 0;
+  void add(const cv::Mat& disp, const cv::Mat& gt, const cv::Mat& nonocc) {
+    for (int y = 0; y < disp.rows; ++y) {
+      const float* d = disp.ptr<float>(y);
+      const float* g = gt.ptr<float>(y);
+      const uint8_t* m = nonocc.ptr<uint8_t>(y);
+      for (int x = 0; x < disp.cols; ++x) {
+        if (!m[x]) continue;
+        ++gt_pixels;
+        if (!std::isfinite(d[x])) continue;
+        ++output;
+        bad += std::abs(d[x] - g[x]) > 2.0f;
+      }
+    }
+  }
+  double bad2() const { return output ? double(bad) / double(output) : 0.0; }
+  double density() const { return gt_pixels ? double(output) / double(gt_pixels) : 0.0; }
+};
+
+struct Timing {
+  std::vector<double> ms;
+  double mean() const {
+    double s = 0;
+    for (double v : ms) s += v;
+    return ms.empty() ? 0.0 : s / ms.size();
+  }
+  double median() const {
+    if (ms.empty()) return 0.0;
+    std::vector<double> v = ms;
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  }
+};
+
+double msSince(std::chrono::steady_clock::time_point t) {
+  return std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t).count();
+}
+
+cv::Mat sgbmDisparity(cv::Ptr<cv::StereoSGBM>& sgbm, const cv::Mat& l, const cv::Mat& r, int dmax) {
+  cv::Mat raw, out;
+  sgbm->compute(l, r, raw);
+  raw.convertTo(out, CV_32F, 1.0 / 16.0);
+  // Invalid pixels come back as (minDisparity - 1) * 16.
+  out.setTo(std::numeric_limits<float>::quiet_NaN(), raw < sgbm->getMinDisparity() * 16);
+  out.setTo(std::numeric_limits<float>::quiet_NaN(), out > dmax);
+  return out;
+}
+
+cv::Mat labelled(const cv::Mat& img, const std::string& text) {
+  cv::Mat out = img.clone();
+  cv::putText(out, text, cv::Point(12, 32), cv::FONT_HERSHEY_SIMPLEX, 0.9, cv::Scalar(0, 0, 0), 4, cv::LINE_AA);
+  cv::putText(out, text, cv::Point(12, 32), cv::FONT_HERSHEY_SIMPLEX, 0.9, cv::Scalar(255, 255, 255), 2, cv::LINE_AA);
+  return out;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  endo_stereo::SurgicalSceneParams sp;
+  endo_stereo::PipelineParams pp;
+  int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
+  bool run_sgbm = true;
+  std::string out_dir;
+  std::vector<std::string> overrides;
+  std::string params_file;
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    auto next = [&]() -> std::string {
+      if (i + 1 >= argc) {
+        std::cerr << a << " needs a value\n";
+        std::exit(2);
+      }
+      return argv[++i];
+    };
+    if (a == "-h" || a == "--help") {
+      std::cout << kUsage;
+      return 0;
+    } else if (a == "--frames") {
+      frames = std::atoi(next().c_str());
+    } else if (a == "--warmup") {
+      warmup = std::atoi(next().c_str());
+    } else if (a == "--width") {
+      sp.width = std::atoi(next().c_str());
+    } else if (a == "--height") {
+      sp.height = std::atoi(next().c_str());
+    } else if (a == "--seed") {
+      sp.seed = uint64_t(std::atoll(next().c_str()));
+    } else if (a == "--noise") {
+      sp.noise_sigma = std::atof(next().c_str());
+    } else if (a == "--params") {
+      params_file = next();
+    } else if (a == "--set") {
+      overrides.push_back(next());
+    } else if (a == "--threads") {
+      threads = std::atoi(next().c_str());
+    } else if (a == "--no-sgbm") {
+      run_sgbm = false;
+    } else if (a == "--out") {
+      out_dir = next();
+    } else if (a == "--picture-frame") {
+      picture_frame = std::atoi(next().c_str());
+    } else {
+      std::cerr << "unknown argument " << a << " (see --help)\n";
+      return 2;
+    }
+  }
+  if (frames < 2 || warmup < 0 || warmup >= frames) {
+    std::cerr << "--frames must be >= 2 and 0 <= --warmup < --frames\n";
+    return 2;
+  }
+  if (picture_frame < 0 || picture_frame >= frames) picture_frame = frames - 1;
+  const std::string scene_error = sp.validate();
+  if (!scene_error.empty()) {
+    std::cerr << scene_error << "\n";
+    return 2;
+  }
+  endo_stereo::SurgicalScene scene(sp);
+  int dmin = 0, dmax = 0;
+  scene.suggestedDisparityRange(&dmin, &dmax);
+  pp.matcher.min_disparity = dmin;
+  pp.matcher.max_disparity = dmax;
+  if (!params_file.empty()) {
+    const std::string e = endo_stereo::loadPipelineParams(params_file, pp);
+    if (!e.empty()) {
+      std::cerr << e << "\n";
+      return 2;
+    }
+    // The scene decides the range unless overridden below.
+    pp.matcher.min_disparity = dmin;
+    pp.matcher.max_disparity = dmax;
+  }
+  for (const std::string& o : overrides) {
+    const std::string e = endo_stereo::applyParamOverride(pp, o);
+    if (!e.empty()) {
+      std::cerr << e << "\n";
+      return 2;
+    }
+  }
+  pp.matcher.num_threads = threads;
+  cv::setNumThreads(threads);
+  endo_stereo::TemporalParams with = pp.temporal, without = pp.temporal;
+  with.enabled = true;
+  without.enabled = false;
+  endo_stereo::RobustMatcher matcher_with(pp.matcher, pp.filter);
+  endo_stereo::RobustMatcher matcher_without(pp.matcher, pp.filter);
+  endo_stereo::TemporalTracker tracker_with(with), tracker_without(without);
+  const int num_disp = ((pp.matcher.max_disparity - pp.matcher.min_disparity + 1 + 15) / 16) * 16;
+  cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(pp.matcher.min_disparity, num_disp, 5,
+                                                        8 * 25, 32 * 25, 1, 0, 10, 100, 1,
+                                                        cv::StereoSGBM::MODE_SGBM);
+
+  Timing t_with, t_without, t_sgbm;
+  Score s_with, s_without, s_sgbm, s_fused, s_with_narrowed, s_with_full;
+  int64_t narrowed = 0, hits = 0, fallbacks = 0, searched = 0;
+  double width_sum = 0;
+  int width_frames = 0;
+  endo_stereo::SurgicalFrame frame;
+  endo_stereo::MatchResult res_with, res_without;
+  cv::Mat picture_left, picture_disp, picture_fused;
+  std::vector<double> frame_ms_with;
+  for (int i = 0; i < frames; ++i) {
+    scene.render(i, frame);
+    cv::Mat l, r;
+    cv::cvtColor(frame.left, l, cv::COLOR_BGR2GRAY);
+    cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
+    const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
+    const endo_stereo::TemporalFrameInfo info{l.size(), frame.stamp_s, 0, pp.matcher.min_disparity,
+                                              pp.matcher.max_disparity};
+    // 1. with priors (timed: range building + matching + post-filter + prior/fusion/coverage update)
+    auto t0 = std::chrono::steady_clock::now();
+    const endo_stereo::SearchRange* range = tracker_with.beginFrame(info);
+    matcher_with.compute(l, r, res_with, range);
+    tracker_with.endFrame(res_with.disparity, true, true);
+    const double ms_with = msSince(t0);
+    // 2. without priors
+    t0 = std::chrono::steady_clock::now();
+    tracker_without.beginFrame(info);
+    matcher_without.compute(l, r, res_without, nullptr);
+    tracker_without.endFrame(res_without.disparity, false, true);
+    const double ms_without = msSince(t0);
+    // 3. SGBM
+    double ms_sgbm = 0;
+    cv::Mat d_sgbm;
+    if (run_sgbm) {
+      t0 = std::chrono::steady_clock::now();
+      d_sgbm = sgbmDisparity(sgbm, l, r, pp.matcher.max_disparity);
+      ms_sgbm = msSince(t0);
+    }
+    frame_ms_with.push_back(ms_with);
+    if (i >= warmup) {
+      t_with.ms.push_back(ms_with);
+      t_without.ms.push_back(ms_without);
+      if (run_sgbm) t_sgbm.ms.push_back(ms_sgbm);
+    }
+    s_with.add(res_with.disparity, frame.gt_disparity, nonocc);
+    if (range) {
+      // Split the with-priors score by what each pixel searched.
+      const cv::Mat full = (range->lo <= pp.matcher.min_disparity) & (range->hi >= pp.matcher.max_disparity);
+      s_with_narrowed.add(res_with.disparity, frame.gt_disparity, nonocc & ~full);
+      s_with_full.add(res_with.disparity, frame.gt_disparity, nonocc & full);
+    }
+    s_without.add(res_without.disparity, frame.gt_disparity, nonocc);
+    s_fused.add(tracker_with.fusion().disparity(), frame.gt_disparity, nonocc);
+    if (run_sgbm) s_sgbm.add(d_sgbm, frame.gt_disparity, nonocc);
+    const endo_stereo::TemporalPriorStats& ps = tracker_with.prior().stats();
+    if (range) {
+      narrowed += ps.narrowed_pixels;
+      hits += ps.prior_hits;
+      fallbacks += ps.fallback_pixels;
+      searched += int64_t(l.total());
+      width_sum += ps.mean_narrowed_width_px;
+      ++width_frames;
+    }
+    if (i == picture_frame) {
+      picture_left = frame.left.clone();
+      picture_disp = endo_stereo::colorizeDisparity(res_with.disparity, dmin, dmax);
+      picture_fused = endo_stereo::colorizeDisparity(tracker_with.fusion().disparity(), dmin, dmax);
+    }
+    Score this_frame, this_frame_without;
+    this_frame.add(res_with.disparity, frame.gt_disparity, nonocc);
+    this_frame_without.add(res_without.disparity, frame.gt_disparity, nonocc);
+    std::fprintf(stderr,
+                 "frame %3d: with priors %7.1f ms bad2 %.2f%% density %.1f%% | without %7.1f ms bad2 %.2f%% "
+                 "density %.1f%% | sgbm %7.1f ms\n",
+                 i, ms_with, 100.0 * this_frame.bad2(), 100.0 * this_frame.density(), ms_without,
+                 100.0 * this_frame_without.bad2(), 100.0 * this_frame_without.density(), ms_sgbm);
+  }
+  const endo_stereo::CoverageStats cov_with = tracker_with.coverage().stats();
+  const endo_stereo::CoverageStats cov_without = tracker_without.coverage().stats();
+
+  char buf[4096];
+  std::snprintf(buf, sizeof(buf),
+                "{\n"
+                "  \"frames\": %d, \"warmup\": %d, \"width\": %d, \"height\": %d, \"seed\": %llu,\n"
+                "  \"disparity_range\": [%d, %d], \"threads\": %d,\n"
+                "  \"ms_per_frame_with_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
+                "  \"ms_per_frame_without_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
+                "  \"ms_per_frame_sgbm\": {\"mean\": %.2f, \"median\": %.2f},\n"
+                "  \"ratio_with_priors_to_sgbm\": %.4f,\n"
+                "  \"bad2_with_priors\": %.5f, \"density_with_priors\": %.4f,\n"
+                "  \"bad2_without_priors\": %.5f, \"density_without_priors\": %.4f,\n"
+                "  \"bad2_with_priors_narrowed_pixels\": %.5f, \"bad2_with_priors_full_range_pixels\": %.5f,\n"
+                "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
+                "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
+                "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
+                "  \"mean_narrowed_width_px\": %.2f,\n"
+                "  \"coverage_with_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f},\n"
+                "  \"coverage_without_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f}\n"
+                "}\n",
+                frames, warmup, sp.width, sp.height, (unsigned long long)sp.seed, pp.matcher.min_disparity,
+                pp.matcher.max_disparity, threads, t_with.mean(), t_with.median(), t_without.mean(),
+                t_without.median(), t_sgbm.mean(), t_sgbm.median(),
+                t_sgbm.mean() > 0 ? t_with.mean() / t_sgbm.mean() : 0.0, s_with.bad2(), s_with.density(),
+                s_without.bad2(), s_without.density(), s_with_narrowed.bad2(), s_with_full.bad2(), s_fused.bad2(), s_fused.density(), s_sgbm.bad2(),
+                s_sgbm.density(), searched ? double(narrowed) / searched : 0.0,
+                narrowed ? double(hits) / narrowed : 0.0, searched ? double(fallbacks) / searched : 0.0,
+                width_frames ? width_sum / width_frames : 0.0, cov_with.central_share, cov_with.overall_share,
+                cov_with.central_never, cov_without.central_share, cov_without.overall_share,
+                cov_without.central_never);
+  std::cout << buf;
+  if (!out_dir.empty()) {
+    std::ofstream(out_dir + "/results.json") << buf;
+    cv::imwrite(out_dir + "/coverage.png", labelled(tracker_with.coverage().colorImage(),
+                                                    "longest run without update (0 .. 20+ frames)"));
+    cv::imwrite(out_dir + "/coverage_without_priors.png",
+                labelled(tracker_without.coverage().colorImage(), "no priors: longest run without update"));
+    cv::Mat row;
+    cv::hconcat(std::vector<cv::Mat>{labelled(picture_left, "input (left)"),
+                                     labelled(picture_disp, "this frame"),
+                                     labelled(picture_fused, "fused (<= 10 frames old)")},
+                row);
+    cv::imwrite(out_dir + "/fused.png", row);
+  }
+  return 0;
+}

@@ -1,0 +1,416 @@
+// Tests of the temporal stage (temporal.hpp): priors, resets, fusion, coverage; on hand-made
+// sequences with known answers and on the synthetic surgical sequence.
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+#include <opencv2/core.hpp>
+
+#include "endo_stereo/core/temporal.hpp"
+#include "surgical_scene.hpp"
+
+namespace endo_stereo {
+namespace {
+
+const float kNaN = std::numeric_limits<float>::quiet_NaN();
+
+cv::Mat constantDisparity(cv::Size size, float d) { return cv::Mat(size, CV_32FC1, cv::Scalar(d)); }
+
+TEST(TemporalParams, ValidateNamesTheField) {
+  EXPECT_EQ(TemporalParams().validate(), "");
+  TemporalParams p;
+  p.prior_radius_px = 0;
+  EXPECT_NE(p.validate().find("prior_radius_px"), std::string::npos);
+  p = TemporalParams();
+  p.max_gap_s = -1;
+  EXPECT_NE(p.validate().find("max_gap_s"), std::string::npos);
+  p = TemporalParams();
+  p.max_prior_failures = 0;
+  EXPECT_NE(p.validate().find("max_prior_failures"), std::string::npos);
+  EXPECT_THROW(TemporalPrior{p}, std::invalid_argument);
+  EXPECT_THROW(TemporalTracker{p}, std::invalid_argument);
+}
+
+TEST(TemporalResetDetector, ReportsEveryDiscontinuity) {
+  TemporalResetDetector det(0.5);
+  TemporalFrameInfo info{cv::Size(64, 48), 10.0, 1, 0, 63};
+  EXPECT_EQ(det.check(info), "");  // first frame
+  info.stamp_s = 10.04;
+  EXPECT_EQ(det.check(info), "");
+  info.stamp_s = 10.04;  // a repeated stamp is not a jump
+  EXPECT_EQ(det.check(info), "");
+  info.stamp_s = 6.0;  // a looping bag
+  EXPECT_NE(det.check(info).find("time went back"), std::string::npos);
+  info.stamp_s = 7.0;  // 1 s gap > 0.5
+  EXPECT_NE(det.check(info).find("gap"), std::string::npos);
+  info.stamp_s = 7.04;
+  info.size = cv::Size(32, 24);
+  EXPECT_NE(det.check(info).find("size"), std::string::npos);
+  info.stamp_s = 7.08;
+  info.calibration_generation = 2;
+  EXPECT_NE(det.check(info).find("calibration"), std::string::npos);
+  info.stamp_s = 7.12;
+  info.max_disparity = 95;
+  EXPECT_NE(det.check(info).find("disparity range"), std::string::npos);
+  info.stamp_s = std::numeric_limits<double>::quiet_NaN();  // unknown time: no time checks
+  EXPECT_EQ(det.check(info), "");
+}
+
+TEST(TemporalPrior, FirstFrameSearchesTheFullRange) {
+  TemporalPrior prior;
+  SearchRange range;
+  EXPECT_FALSE(prior.buildRange(cv::Size(40, 30), 0, 63, range));
+  EXPECT_TRUE(range.empty());
+  EXPECT_EQ(prior.stats().full_range_pixels, 40 * 30);
+  EXPECT_EQ(prior.stats().narrowed_pixels, 0);
+}
+
+TEST(TemporalPrior, NarrowsAroundPreviousDisparity) {
+  TemporalParams p;
+  p.prior_radius_px = 4;
+  p.prior_neighbourhood_px = 2;
+  TemporalPrior prior(p);
+  const cv::Size size(40, 30);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  cv::Mat d = constantDisparity(size, 30.3f);
+  d(cv::Rect(10, 10, 10, 10)).setTo(kNaN);  // a hole
+  d.at<float>(25, 35) = 50.0f;              // a different surface
+  prior.update(d);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  ASSERT_EQ(range.lo.type(), CV_16SC1);
+  // floor(30.3 - 4) = 26, ceil(30.3 + 4) = 35.
+  EXPECT_EQ(range.lo.at<int16_t>(0, 0), 26);
+  EXPECT_EQ(range.hi.at<int16_t>(0, 0), 35);
+  // Inside the hole beyond the neighbourhood: the full range.
+  EXPECT_EQ(range.lo.at<int16_t>(15, 15), 0);
+  EXPECT_EQ(range.hi.at<int16_t>(15, 15), 63);
+  // In the hole but within 2 px of valid pixels: their priors.
+  EXPECT_EQ(range.lo.at<int16_t>(11, 11), 26);
+  EXPECT_EQ(range.hi.at<int16_t>(11, 11), 35);
+  // Next to the odd pixel the range spans both surfaces: [26, 54].
+  EXPECT_EQ(range.lo.at<int16_t>(24, 34), 26);
+  EXPECT_EQ(range.hi.at<int16_t>(24, 34), 54);
+  // The hole's interior: 6 x 6 pixels further than 2 px from any valid pixel.
+  EXPECT_EQ(prior.stats().full_range_pixels, 36);
+  EXPECT_EQ(prior.stats().narrowed_pixels, 40 * 30 - 36);
+  EXPECT_GT(prior.stats().mean_narrowed_width_px, 9.9);
+  EXPECT_LT(prior.stats().mean_narrowed_width_px, 10.5);
+  // Clamped to the full range at its ends.
+  prior.update(constantDisparity(size, 62.0f));
+  prior.buildRange(size, 0, 63, range);
+  EXPECT_EQ(range.hi.at<int16_t>(5, 5), 63);
+  EXPECT_EQ(range.lo.at<int16_t>(5, 5), 58);
+}
+
+TEST(TemporalPrior, FallsBackToFullRangeWhenPriorKeepsFailing) {
+  TemporalParams p;
+  p.max_prior_failures = 2;
+  p.max_prior_age_frames = 5;
+  p.prior_neighbourhood_px = 0;
+  TemporalPrior prior(p);
+  const cv::Size size(20, 20);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  prior.update(constantDisparity(size, 20.0f));
+  // The scene jumps: the block's true disparity leaves the narrowed range, so its searches fail.
+  const cv::Rect block(5, 5, 6, 6);
+  cv::Mat failed = constantDisparity(size, 20.0f);
+  failed(block).setTo(kNaN);
+  for (int k = 0; k < 2; ++k) {
+    ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+    EXPECT_EQ(range.lo.at<int16_t>(7, 7), 16) << "failure " << k << " not yet enough";
+    EXPECT_EQ(prior.stats().fallback_pixels, 0);
+    prior.update(failed);
+    EXPECT_EQ(prior.stats().prior_misses, block.area());
+    EXPECT_EQ(prior.stats().prior_hits, 400 - block.area());
+  }
+  // Two failures in a row: the block searches the full range again.
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(range.lo.at<int16_t>(7, 7), 0);
+  EXPECT_EQ(range.hi.at<int16_t>(7, 7), 63);
+  EXPECT_EQ(prior.stats().fallback_pixels, block.area());
+  EXPECT_EQ(range.lo.at<int16_t>(0, 0), 16);  // the rest keeps its prior
+  // The full search finds the new disparity: narrowed around it from then on.
+  cv::Mat found = constantDisparity(size, 20.0f);
+  found(block).setTo(45.0f);
+  prior.update(found);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(range.lo.at<int16_t>(7, 7), 41);
+  EXPECT_EQ(range.hi.at<int16_t>(7, 7), 49);
+  EXPECT_EQ(prior.stats().fallback_pixels, 0);
+}
+
+TEST(TemporalPrior, ForgetsPriorsOlderThanMaxAge) {
+  TemporalParams p;
+  p.max_prior_age_frames = 2;
+  p.max_prior_failures = 100;
+  TemporalPrior prior(p);
+  const cv::Size size(16, 16);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  prior.update(constantDisparity(size, 30.0f));        // age 0
+  EXPECT_TRUE(prior.buildRange(size, 0, 63, range));   // measured 1 frame ago
+  prior.update(constantDisparity(size, kNaN));          // age 1
+  EXPECT_TRUE(prior.buildRange(size, 0, 63, range));   // 2 frames ago: still a prior
+  prior.update(constantDisparity(size, kNaN));          // age 2
+  EXPECT_FALSE(prior.buildRange(size, 0, 63, range));  // 3 frames ago: gone
+  EXPECT_EQ(prior.stats().full_range_pixels, 256);
+}
+
+TEST(TemporalPrior, ResetsOnSizeOrRangeChange) {
+  TemporalPrior prior;
+  SearchRange range;
+  prior.buildRange(cv::Size(16, 16), 0, 63, range);
+  prior.update(constantDisparity(cv::Size(16, 16), 30.0f));
+  EXPECT_FALSE(prior.buildRange(cv::Size(16, 16), 0, 95, range));  // new full range
+  prior.update(constantDisparity(cv::Size(16, 16), 30.0f));
+  EXPECT_FALSE(prior.buildRange(cv::Size(20, 16), 0, 95, range));  // new size
+  EXPECT_THROW(prior.update(constantDisparity(cv::Size(16, 16), 30.0f)), std::invalid_argument);
+}
+
+TEST(TemporalTracker, ResetsWhenTimeGoesBackOrAfterLongGap) {
+  TemporalParams p;
+  p.max_gap_s = 0.5;
+  TemporalTracker tracker(p);
+  const cv::Size size(16, 16);
+  const cv::Mat d = constantDisparity(size, 30.0f);
+  std::string reason;
+  TemporalFrameInfo info{size, 100.0, 0, 0, 63};
+  EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);
+  tracker.endFrame(d, true, true);
+  info.stamp_s = 100.04;
+  const SearchRange* range = tracker.beginFrame(info, &reason);
+  EXPECT_EQ(reason, "");
+  ASSERT_NE(range, nullptr);
+  EXPECT_TRUE(tracker.priorsUsed());
+  EXPECT_EQ(range->lo.at<int16_t>(8, 8), 26);
+  tracker.endFrame(d, true, true);
+  EXPECT_EQ(tracker.coverage().frames(), 2);
+  // The bag loops: time goes back, everything is forgotten.
+  info.stamp_s = 90.0;
+  EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);
+  EXPECT_NE(reason.find("time went back"), std::string::npos);
+  EXPECT_TRUE(tracker.fusion().disparity().empty());
+  EXPECT_EQ(tracker.coverage().frames(), 0);
+  tracker.endFrame(d, true, true);
+  info.stamp_s = 90.04;
+  EXPECT_NE(tracker.beginFrame(info, &reason), nullptr);
+  tracker.endFrame(d, true, true);
+  // A long gap.
+  info.stamp_s = 91.0;
+  EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);
+  EXPECT_NE(reason.find("gap"), std::string::npos);
+  tracker.endFrame(d, true, true);
+  // A new calibration.
+  info.stamp_s = 91.04;
+  info.calibration_generation = 7;
+  EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);
+  EXPECT_NE(reason.find("calibration"), std::string::npos);
+}
+
+TEST(TemporalTracker, DisabledPriorsNeverNarrowButFusionAndCoverageRun) {
+  TemporalParams p;
+  p.enabled = false;
+  TemporalTracker tracker(p);
+  const cv::Size size(16, 16);
+  for (int k = 0; k < 3; ++k) {
+    TemporalFrameInfo info{size, 0.04 * k, 0, 0, 63};
+    EXPECT_EQ(tracker.beginFrame(info), nullptr);
+    EXPECT_FALSE(tracker.priorsUsed());
+    tracker.endFrame(constantDisparity(size, 30.0f), true, true);
+  }
+  EXPECT_EQ(tracker.coverage().frames(), 3);
+  EXPECT_EQ(tracker.fusion().disparity().at<float>(3, 3), 30.0f);
+  // Enabling them later starts from a clean prior.
+  p.enabled = true;
+  tracker.setParams(p);
+  TemporalFrameInfo info{size, 0.12, 0, 0, 63};
+  EXPECT_EQ(tracker.beginFrame(info), nullptr);
+  tracker.endFrame(constantDisparity(size, 30.0f), false, false);
+  info.stamp_s = 0.16;
+  EXPECT_NE(tracker.beginFrame(info), nullptr);
+}
+
+// Hand-made 1 x 4 sequence, max age 2. Pixel columns:
+//   0: valid every frame; 1: valid at frame 0 only; 2: never valid; 3: valid at frames 0 and 3.
+TEST(TemporalFusion, KeepsMostRecentValidUntilMaxAge) {
+  TemporalFusion fusion(2);
+  const float seq[5][4] = {{10, 20, kNaN, 40},
+                           {11, kNaN, kNaN, kNaN},
+                           {12, kNaN, kNaN, kNaN},
+                           {13, kNaN, kNaN, 43},
+                           {14, kNaN, kNaN, kNaN}};
+  const float want_d[5][4] = {{10, 20, kNaN, 40},
+                              {11, 20, kNaN, 40},
+                              {12, 20, kNaN, 40},
+                              {13, kNaN, kNaN, 43},
+                              {14, kNaN, kNaN, 43}};
+  const uint16_t want_age[5][4] = {{0, 0, kAgeNone, 0},
+                                   {0, 1, kAgeNone, 1},
+                                   {0, 2, kAgeNone, 2},
+                                   {0, kAgeNone, kAgeNone, 0},
+                                   {0, kAgeNone, kAgeNone, 1}};
+  for (int f = 0; f < 5; ++f) {
+    const cv::Mat frame(1, 4, CV_32FC1, const_cast<float*>(seq[f]));
+    fusion.update(frame);
+    for (int x = 0; x < 4; ++x) {
+      const float got = fusion.disparity().at<float>(0, x);
+      if (std::isnan(want_d[f][x])) {
+        EXPECT_TRUE(std::isnan(got)) << "frame " << f << " px " << x;
+      } else {
+        EXPECT_EQ(got, want_d[f][x]) << "frame " << f << " px " << x;
+      }
+      EXPECT_EQ(fusion.age().at<uint16_t>(0, x), want_age[f][x]) << "frame " << f << " px " << x;
+    }
+  }
+  // max age 0 = this frame only.
+  TemporalFusion now(0);
+  now.update(cv::Mat(1, 4, CV_32FC1, const_cast<float*>(seq[0])));
+  now.update(cv::Mat(1, 4, CV_32FC1, const_cast<float*>(seq[1])));
+  EXPECT_EQ(now.disparity().at<float>(0, 0), 11.0f);
+  EXPECT_TRUE(std::isnan(now.disparity().at<float>(0, 1)));
+}
+
+// Hand-made sequence of 12 frames on a 1 x 4 image, N = 3. Updates (1) per pixel:
+//   0: every frame                      -> longest run 0
+//   1: every third frame (0, 3, 6, 9)   -> runs of 2, and 2 at the end -> 2 (< 3: within)
+//   2: frames 0 and 11                  -> run of 10 -> 10
+//   3: never                            -> 12 (and never updated)
+TEST(CoverageTracker, LongestRunOnHandMadeSequence) {
+  CoverageTracker cov(3);
+  for (int f = 0; f < 12; ++f) {
+    cv::Mat d(1, 4, CV_32FC1, cv::Scalar(kNaN));
+    d.at<float>(0, 0) = 1.0f;
+    if (f % 3 == 0) d.at<float>(0, 1) = 1.0f;
+    if (f == 0 || f == 11) d.at<float>(0, 2) = 1.0f;
+    cov.update(d);
+  }
+  EXPECT_EQ(cov.frames(), 12);
+  EXPECT_EQ(cov.longestRun().at<uint16_t>(0, 0), 0);
+  EXPECT_EQ(cov.longestRun().at<uint16_t>(0, 1), 2);
+  EXPECT_EQ(cov.longestRun().at<uint16_t>(0, 2), 10);
+  EXPECT_EQ(cov.longestRun().at<uint16_t>(0, 3), 12);
+  EXPECT_EQ(cov.currentRun().at<uint16_t>(0, 1), 2);
+  const CoverageStats s = cov.stats();
+  EXPECT_DOUBLE_EQ(s.overall_share, 0.5);
+  EXPECT_DOUBLE_EQ(s.overall_never, 0.25);
+  const cv::Mat img = cov.colorImage();
+  ASSERT_EQ(img.type(), CV_8UC3);
+  EXPECT_EQ(img.size(), cv::Size(4, 1));
+}
+
+TEST(CoverageTracker, CentralRegionIsTheMiddleHalfByArea) {
+  const cv::Rect r = CoverageTracker::centralRegion(cv::Size(960, 540));
+  EXPECT_NEAR(double(r.area()) / (960.0 * 540.0), 0.5, 0.005);
+  EXPECT_NEAR(r.x + 0.5 * r.width, 480.0, 1.0);
+  EXPECT_NEAR(r.y + 0.5 * r.height, 270.0, 1.0);
+  // A 40 x 20 image whose border (outside the central region) is never updated.
+  CoverageTracker cov(10);
+  const cv::Size size(40, 20);
+  const cv::Rect c = CoverageTracker::centralRegion(size);
+  for (int f = 0; f < 15; ++f) {
+    cv::Mat d(size, CV_32FC1, cv::Scalar(kNaN));
+    d(c).setTo(5.0f);
+    cov.update(d);
+  }
+  const CoverageStats s = cov.stats();
+  EXPECT_EQ(s.central_region, c);
+  EXPECT_DOUBLE_EQ(s.central_share, 1.0);
+  EXPECT_DOUBLE_EQ(s.central_never, 0.0);
+  EXPECT_NEAR(s.overall_share, double(c.area()) / size.area(), 1e-12);
+  // The colour picture: never-updated pixels black, central ones coloured, outline white.
+  const cv::Mat img = cov.colorImage();
+  EXPECT_EQ(img.at<cv::Vec3b>(0, 0), cv::Vec3b(0, 0, 0));
+  EXPECT_EQ(img.at<cv::Vec3b>(c.y, c.x), cv::Vec3b(255, 255, 255));
+  EXPECT_NE(img.at<cv::Vec3b>(10, 20), cv::Vec3b(0, 0, 0));
+}
+
+// On the synthetic surgical sequence, with the ground truth standing in for a perfect matcher:
+// the previous frame's disparities narrow the search, and the next frame's true disparity lies
+// inside the narrowed range wherever the scene moved less than the radius.
+TEST(TemporalPrior, RangesShrinkAndHoldTheNextFrameOnAMovingSequence) {
+  cv::setNumThreads(2);
+  SurgicalSceneParams sp;
+  sp.width = 320;
+  sp.height = 180;
+  sp.noise_sigma = 0.0;
+  const SurgicalScene scene(sp);
+  int dmin = 0, dmax = 0;
+  scene.suggestedDisparityRange(&dmin, &dmax);
+  TemporalPrior prior;
+  SearchRange range;
+  SurgicalFrame frame;
+  auto measured = [&](const SurgicalFrame& f) {
+    cv::Mat d = f.gt_disparity.clone();
+    d.setTo(kNaN, f.visibility != kVisibleBoth);  // a matcher cannot see occluded points
+    return d;
+  };
+  auto inside = [&](const SurgicalFrame& f, int64_t* narrowed, int64_t* held) {
+    *narrowed = *held = 0;
+    for (int y = 0; y < f.gt_disparity.rows; ++y) {
+      for (int x = 0; x < f.gt_disparity.cols; ++x) {
+        const int lo = range.lo.at<int16_t>(y, x), hi = range.hi.at<int16_t>(y, x);
+        if (lo == dmin && hi == dmax) continue;
+        ++*narrowed;
+        const float d = f.gt_disparity.at<float>(y, x);
+        *held += d >= lo && d <= hi;
+      }
+    }
+  };
+  for (int i = 0; i < 4; ++i) {
+    scene.render(i, frame);
+    const bool narrowed = prior.buildRange(frame.gt_disparity.size(), dmin, dmax, range);
+    EXPECT_EQ(narrowed, i > 0);
+    if (i > 0) {
+      const int64_t total = int64_t(frame.gt_disparity.total());
+      // Everything but the few columns at the left border (outside the right view) is narrowed.
+      EXPECT_GT(prior.stats().narrowed_pixels, 0.85 * total);
+      // 2 * 4 + 1 = 9 disparities around smooth priors, a little more along depth edges, instead
+      // of the full range (32 here).
+      EXPECT_LT(prior.stats().mean_narrowed_width_px, 11.0);
+      EXPECT_LT(prior.stats().mean_narrowed_width_px, 0.4 * (dmax - dmin + 1));
+      int64_t n = 0, held = 0;
+      inside(frame, &n, &held);
+      // Misses only where the instrument's edge moved by more than the neighbourhood.
+      EXPECT_GT(double(held) / double(n), 0.98) << "frame " << i;
+    }
+    prior.update(measured(frame));
+  }
+  // A sudden jump (a cut in the video: frame 60 after frame 3, with continuous stamps): where the
+  // truth left the narrowed range a real matcher finds no valid peak; simulate that outcome.
+  scene.render(60, frame);
+  int64_t n = 0, held = 0;
+  for (int k = 0; k < 3; ++k) {
+    ASSERT_TRUE(prior.buildRange(frame.gt_disparity.size(), dmin, dmax, range));
+    inside(frame, &n, &held);
+    if (k < 2) {
+      ASSERT_GT(n - held, 500) << "the jump must put many pixels outside their prior";
+      // Only the few pixels that lost sight of the right camera before the jump fall back yet.
+      EXPECT_LT(prior.stats().fallback_pixels, 50);
+    } else {
+      // After two failures in a row those pixels search the full range again.
+      EXPECT_GT(prior.stats().fallback_pixels, 500);
+    }
+    cv::Mat d = measured(frame);
+    for (int y = 0; y < d.rows; ++y)
+      for (int x = 0; x < d.cols; ++x) {
+        const float v = d.at<float>(y, x);
+        if (!(v >= range.lo.at<int16_t>(y, x) && v <= range.hi.at<int16_t>(y, x))) d.at<float>(y, x) = kNaN;
+      }
+    prior.update(d);
+  }
+  // The full search found the new disparities: the priors hold the truth again.
+  ASSERT_TRUE(prior.buildRange(frame.gt_disparity.size(), dmin, dmax, range));
+  inside(frame, &n, &held);
+  EXPECT_GT(double(held) / double(n), 0.98);
+  EXPECT_EQ(prior.stats().fallback_pixels, 0);
+}
+
+}  // namespace
+}  // namespace endo_stereo
+
+int main(int argc, char** argv) {
+  ::testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}
