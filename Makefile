@@ -3,7 +3,7 @@ SHELL := /bin/bash
 WS ?= $(CURDIR)/ws
 export WS
 
-.PHONY: all deps build test bench demo clean help
+.PHONY: all deps build test bench demo clean help asan tsan fuzz soak
 
 all: build
 
@@ -12,6 +12,8 @@ help:
 	@echo "make test   - install missing Debian packages, build, run every test (last line: N passed, N failed)"
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
+	@echo "make asan   - ASan+UBSan build in ws_asan, whole test suite;  make tsan - TSan nodelet run"
+	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 20000-frame soak"
 
 deps:
 	@scripts/install_deps.sh
@@ -27,6 +29,19 @@ bench: build
 
 demo: build
 	@scripts/demo.sh
+
+# Reliability (RELIABILITY.md): sanitizer workspaces of their own, fuzzing outside catkin.
+asan: deps
+	@scripts/sanitize.sh asan
+
+tsan: deps
+	@scripts/sanitize.sh tsan
+
+fuzz:
+	@scripts/fuzz.sh run
+
+soak: build
+	@scripts/soak.sh
 
 clean:
 	rm -rf $(WS) out

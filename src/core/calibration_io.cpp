@@ -1,13 +1,13 @@
 #include "endo_stereo/core/calibration_io.hpp"
 
+#include <yaml-cpp/yaml.h>
+
 #include <cmath>
 #include <fstream>
 #include <iomanip>
+#include <opencv2/core/persistence.hpp>
 #include <sstream>
 #include <vector>
-
-#include <yaml-cpp/yaml.h>
-#include <opencv2/core/persistence.hpp>
 
 namespace endo_stereo {
 
@@ -153,10 +153,9 @@ bool parseCameraInfoYaml(const std::string& text, CameraCalibration& out, std::s
     if (root["binning_y"]) c.binning_y = root["binning_y"].as<int>();
     if (root["roi"]) {
       const YAML::Node r = root["roi"];
-      c.roi = cv::Rect(r["x_offset"] ? r["x_offset"].as<int>() : 0,
-                       r["y_offset"] ? r["y_offset"].as<int>() : 0,
-                       r["width"] ? r["width"].as<int>() : 0,
-                       r["height"] ? r["height"].as<int>() : 0);
+      c.roi = cv::Rect(
+          r["x_offset"] ? r["x_offset"].as<int>() : 0, r["y_offset"] ? r["y_offset"].as<int>() : 0,
+          r["width"] ? r["width"].as<int>() : 0, r["height"] ? r["height"].as<int>() : 0);
     }
   } catch (const YAML::Exception& ex) {
     return fail(error, std::string("bad scalar field: ") + ex.what());
@@ -252,29 +251,40 @@ bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::
     readCvMat(fs, "D2", &d2);
     const bool has_r1 = readCvMat(fs, "R1", &r1), has_r2 = readCvMat(fs, "R2", &r2);
     const bool has_p1 = readCvMat(fs, "P1", &p1), has_p2 = readCvMat(fs, "P2", &p2);
-    if (!matToMatx33(m1, &s.left.K)) return fail(error, path + ": M1: must be 3x3, got " + sizeString(m1));
-    if (!matToMatx33(m2, &s.right.K)) return fail(error, path + ": M2: must be 3x3, got " + sizeString(m2));
-    if (!matToMatx33(r, &s.R_right_left)) return fail(error, path + ": R: must be 3x3, got " + sizeString(r));
-    if (t.total() != 3) return fail(error, path + ": T: must have 3 elements, got " + sizeString(t));
+    if (!matToMatx33(m1, &s.left.K))
+      return fail(error, path + ": M1: must be 3x3, got " + sizeString(m1));
+    if (!matToMatx33(m2, &s.right.K))
+      return fail(error, path + ": M2: must be 3x3, got " + sizeString(m2));
+    if (!matToMatx33(r, &s.R_right_left))
+      return fail(error, path + ": R: must be 3x3, got " + sizeString(r));
+    if (t.total() != 3)
+      return fail(error, path + ": T: must have 3 elements, got " + sizeString(t));
     for (int i = 0; i < 3; ++i) s.T_right_left[i] = t.at<double>(i) * translation_scale;
     s.has_extrinsics = true;
     for (int k = 0; k < 2; ++k) {
       const cv::Mat& d = k == 0 ? d1 : d2;
       CameraCalibration& cam = k == 0 ? s.left : s.right;
       if (!d.empty() && d.rows != 1 && d.cols != 1) {
-        return fail(error, path + (k == 0 ? ": D1" : ": D2") + ": must be a vector, got " + sizeString(d));
+        return fail(error,
+                    path + (k == 0 ? ": D1" : ": D2") + ": must be a vector, got " + sizeString(d));
       }
-      cam.D.assign(d.begin<double>(), d.end<double>());
+      cam.D.clear();
+      // (An empty cv::Mat's iterators divide by its zero element count: do not touch them.)
+      if (!d.empty()) cam.D.assign(d.begin<double>(), d.end<double>());
       cam.distortion_model = modelForCount(cam.D.size());
     }
     if (has_r1 != has_r2 || has_p1 != has_p2 || has_r1 != has_p1) {
       return fail(error, path + ": R1 R2 P1 P2: give all four or none");
     }
     if (has_p1) {
-      if (!matToMatx33(r1, &s.left.R)) return fail(error, path + ": R1: must be 3x3, got " + sizeString(r1));
-      if (!matToMatx33(r2, &s.right.R)) return fail(error, path + ": R2: must be 3x3, got " + sizeString(r2));
-      if (!matToMatx34(p1, &s.left.P)) return fail(error, path + ": P1: must be 3x4, got " + sizeString(p1));
-      if (!matToMatx34(p2, &s.right.P)) return fail(error, path + ": P2: must be 3x4, got " + sizeString(p2));
+      if (!matToMatx33(r1, &s.left.R))
+        return fail(error, path + ": R1: must be 3x3, got " + sizeString(r1));
+      if (!matToMatx33(r2, &s.right.R))
+        return fail(error, path + ": R2: must be 3x3, got " + sizeString(r2));
+      if (!matToMatx34(p1, &s.left.P))
+        return fail(error, path + ": P1: must be 3x4, got " + sizeString(p1));
+      if (!matToMatx34(p2, &s.right.P))
+        return fail(error, path + ": P2: must be 3x4, got " + sizeString(p2));
       s.right.P(0, 3) *= translation_scale;
       s.right.P(1, 3) *= translation_scale;
       s.right.P(2, 3) *= translation_scale;
@@ -356,8 +366,8 @@ bool loadOpenCvXmlMatrix(const std::string& path, cv::Mat& out, std::string* err
     }
   }
   if (int(v.size()) != rows * cols) {
-    return fail(error, path + ": <data> has " + std::to_string(v.size()) + " values, rows x cols = " +
-                           std::to_string(rows * cols));
+    return fail(error, path + ": <data> has " + std::to_string(v.size()) +
+                           " values, rows x cols = " + std::to_string(rows * cols));
   }
   out = cv::Mat(rows, cols, CV_64F);
   std::copy(v.begin(), v.end(), out.begin<double>());
@@ -380,8 +390,8 @@ bool loadSksurgeryXmlCalibration(const std::string& dir, int width, int height,
   if (t.total() != 3) return fail(error, dir + ": translation: must have 3 values");
   for (int i = 0; i < 3; ++i) s.T_right_left[i] = t.at<double>(i) * 1e-3;  // mm -> m
   s.has_extrinsics = true;
-  s.left.D.assign(dl.begin<double>(), dl.end<double>());
-  s.right.D.assign(dr.begin<double>(), dr.end<double>());
+  if (!dl.empty()) s.left.D.assign(dl.begin<double>(), dl.end<double>());
+  if (!dr.empty()) s.right.D.assign(dr.begin<double>(), dr.end<double>());
   s.left.distortion_model = modelForCount(s.left.D.size());
   s.right.distortion_model = modelForCount(s.right.D.size());
   s.left.width = s.right.width = width;
@@ -404,9 +414,12 @@ bool loadTextStereoCalibration(const std::string& dir, int width, int height,
   if (!readNumbers(joinPath(dir, "calib.left.distortion.txt"), &dl, error)) dl.clear();
   if (!readNumbers(joinPath(dir, "calib.right.distortion.txt"), &dr, error)) dr.clear();
   if (error) error->clear();
-  if (kl.size() != 9) return fail(error, p_kl + ": must hold 9 values (3x3 K), got " + std::to_string(kl.size()));
-  if (kr.size() != 9) return fail(error, p_kr + ": must hold 9 values (3x3 K), got " + std::to_string(kr.size()));
-  if (l2r.size() != 16) return fail(error, p_l2r + ": must hold 16 values (4x4), got " + std::to_string(l2r.size()));
+  if (kl.size() != 9)
+    return fail(error, p_kl + ": must hold 9 values (3x3 K), got " + std::to_string(kl.size()));
+  if (kr.size() != 9)
+    return fail(error, p_kr + ": must hold 9 values (3x3 K), got " + std::to_string(kr.size()));
+  if (l2r.size() != 16)
+    return fail(error, p_l2r + ": must hold 16 values (4x4), got " + std::to_string(l2r.size()));
   StereoCalibration s;
   s.left.K = toMatx<3, 3>(kl);
   s.right.K = toMatx<3, 3>(kr);

@@ -60,6 +60,8 @@ std::string MatcherParams::validate() const {
     msg << "matcher.gamma_min = " << gamma_min << " must be finite and >= 0";
   } else if (!(delta_min >= 0.0 && delta_min <= 2.0)) {
     msg << "matcher.delta_min = " << delta_min << " must be in [0, 2]";
+  } else if (!(min_ncc >= -1.0 && min_ncc <= 1.0)) {
+    msg << "matcher.min_ncc = " << min_ncc << " must be in [-1, 1] (-1 = off)";
   } else if (!(epsilon_px > 0.0) || !std::isfinite(epsilon_px)) {
     msg << "matcher.epsilon_px = " << epsilon_px << " must be finite and > 0";
   } else if (num_threads < 0) {
@@ -76,7 +78,10 @@ std::string MatcherParams::validate() const {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
-constexpr int kStripeRows = 16;  // fixed, so the work split never depends on the thread count
+// Fixed stripes of rows, so the work split never depends on the thread count.
+constexpr int kStripeRows = 32;
+// Column blocks used to find, per disparity, the column intervals worth computing.
+constexpr int kBlock = 32;
 
 // Sentinel of an empty effective range.
 constexpr int kEmptyLo = std::numeric_limits<int>::max() / 2;
@@ -92,47 +97,104 @@ struct LevelMaps {
   cv::Mat gamma_r;  ///< CV_32F same, right
 };
 
-/// Scratch of one worker, reused between rows, stripes and frames.
+struct Interval {
+  int a, b;  // inclusive
+};
+
+/// Columns of the vertical window sums of one disparity that hold valid values, for the row
+/// computed last (`cur_row`) and the row before it (`prev`), as sorted disjoint intervals.
+struct VValidity {
+  int cur_row = -10;
+  std::vector<Interval> cur, prev;
+};
+
+/// Scratch of one worker, reused between rows, stripes, levels and frames.
 struct Scratch {
   int width = 0;
   int num_d = 0;
-  std::vector<float> v;          // vertical window sums, num_d rows of width
-  std::vector<int> v_row;        // per d: the image row v holds, or -1
-  std::vector<int> v_a, v_b;     // per d: columns [a, b] of v that are valid
+  std::vector<float> v;            // vertical window sums, num_d rows of width
+  std::vector<VValidity> valid;    // per disparity
   std::vector<float> tmp_a, tmp_b, hsum;
-  std::vector<float> elo, ehi;   // effective range of this row (float for branch-free compares)
+  std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
   std::vector<int> elo_i, ehi_i;
-  std::vector<int> first_x, last_x, link;
   std::vector<float> p1, p2, best, best_d, best_l, best_r, second;
   std::vector<float> rb_v, rb_d;
-  std::vector<uint8_t> act;
+  std::vector<int> cover;          // per block, per disparity: pixels whose range holds it
+  std::vector<int> iv_start;       // per disparity: first index into ivs
+  std::vector<Interval> ivs;       // the intervals of all disparities, grouped by disparity
+  std::vector<Interval> pieces, merged;
+  std::vector<uint8_t> cand;       // per right pixel: a candidate of phase B
 
   void ensure(int w, int nd) {
-    if (w == width && nd == num_d) return;
-    width = w;
-    num_d = nd;
-    v.assign(static_cast<size_t>(nd) * w, 0.f);
-    v_row.assign(nd, -1);
-    v_a.assign(nd, 0);
-    v_b.assign(nd, -1);
-    for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &p1, &p2, &best, &best_d, &best_l,
-                      &best_r, &second, &rb_v, &rb_d}) {
-      vec->assign(w + 64, 0.f);
+    if (w != width || nd != num_d) {
+      width = w;
+      num_d = nd;
+      v.assign(static_cast<size_t>(nd) * w, 0.f);
+      valid.assign(nd, VValidity{});
+      for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &act, &p1, &p2, &best, &best_d,
+                        &best_l, &best_r, &second, &rb_v, &rb_d}) {
+        vec->assign(w + 64, 0.f);
+      }
+      elo_i.assign(w, 0);
+      ehi_i.assign(w, 0);
+      const int nb = (w + kBlock - 1) / kBlock;
+      cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
+      iv_start.assign(nd + 1, 0);
+      ivs.reserve(static_cast<size_t>(nb) * nd);
+      cand.assign(w, 0);
     }
-    elo_i.assign(w, 0);
-    ehi_i.assign(w, 0);
-    act.assign(w, 0);
-    first_x.assign(nd + 1, 0);
-    last_x.assign(nd + 1, 0);
-    link.assign(nd + 2, 0);
+  }
+  /// Forget all vertical sums (new level or new frame).
+  void resetV() {
+    for (auto& vv : valid) {
+      vv.cur_row = -10;
+      vv.cur.clear();
+      vv.prev.clear();
+    }
   }
 };
 
+// --- Vectorisable kernels. Built for AVX2 and for the baseline, chosen at load time, so the
+// library runs on any x86-64 and uses AVX2 where the CPU has it. ---------------------------------
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
+#define ES_KERNEL __attribute__((target_clones("avx2", "default")))
+#else
+#define ES_KERNEL
+#endif
+
+ES_KERNEL void vRunning(int n, float* __restrict v, const float* __restrict l_in,
+                        const float* __restrict r_in, const float* __restrict l_out,
+                        const float* __restrict r_out) {
+  for (int i = 0; i < n; ++i) v[i] += l_in[i] * r_in[i] - l_out[i] * r_out[i];
+}
+
+ES_KERNEL void vSet(int n, float* __restrict v, const float* __restrict l,
+                    const float* __restrict r) {
+  for (int i = 0; i < n; ++i) v[i] = l[i] * r[i];
+}
+
+ES_KERNEL void vAdd(int n, float* __restrict v, const float* __restrict l,
+                    const float* __restrict r) {
+  for (int i = 0; i < n; ++i) v[i] += l[i] * r[i];
+}
+
+ES_KERNEL void addShifted(int n, float* __restrict out, const float* __restrict in) {
+  for (int i = 0; i < n; ++i) out[i] += in[i];
+}
+
+ES_KERNEL void copyShifted(int n, float* __restrict out, const float* __restrict in) {
+  for (int i = 0; i < n; ++i) out[i] = in[i];
+}
+
+ES_KERNEL void pairSum(int n, float* __restrict out, const float* __restrict a,
+                       const float* __restrict b) {
+  for (int i = 0; i < n; ++i) out[i] = a[i] + b[i];
+}
+
 /// out[i] = sum_{j < w} in[i + j] for i in [0, n): sums of 2, 4, 8, 16 neighbours built by
-/// doubling, so the cost is O(n log w) with vectorisable passes. Exact on the integer-valued data.
+/// doubling, so the cost is O(n log w) in vectorisable passes. Exact on the integer-valued data.
 void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) {
-  // cur holds sums of `span` consecutive inputs, valid for indices [0, len).
-  const float* cur = in;
+  const float* cur = in;  // sums of `span` consecutive inputs, valid for indices [0, len)
   int span = 1;
   int len = n + w - 1;
   int offset = 0;
@@ -143,10 +205,10 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   while (true) {
     if (rest & 1) {
       if (first) {
-        for (int i = 0; i < n; ++i) out[i] = cur[i + offset];
+        copyShifted(n, out, cur + offset);
         first = false;
       } else {
-        for (int i = 0; i < n; ++i) out[i] += cur[i + offset];
+        addShifted(n, out, cur + offset);
       }
       offset += span;
     }
@@ -155,12 +217,91 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
     float* nxt = bufs[which];
     which ^= 1;
     const int nlen = len - span;
-    for (int i = 0; i < nlen; ++i) nxt[i] = cur[i] + cur[i + span];
+    pairSum(nlen, nxt, cur, cur + span);
     cur = nxt;
     len = nlen;
     span *= 2;
   }
 }
+
+/// Inputs of the per-disparity update of one row interval. Pointers are offset so that index i
+/// is column x = a + i (left quantities) or right column x - d (right quantities, rb_*).
+struct SliceArgs {
+  int n;
+  float d;
+  const float* h;       // window sums of L * R(x - d)
+  const float* mean_l;
+  const float* inv_l;
+  const float* sum_r;   // at x - d
+  const float* inv_r;   // at x - d
+  const float* elo;
+  const float* ehi;
+  const float* act;
+  float *p1, *p2, *best, *best_d, *best_l, *best_r, *second;
+  float *rb_v, *rb_d;   // at x - d
+};
+
+// The streaming peak tracker. At disparity d a pixel knows S(d-2), S(d-1) (p2, p1) and S(d):
+// d-1 is an interior local maximum when S(d-1) > S(d-2) and S(d-1) >= S(d) with d-2 inside its
+// range. The highest interior maximum is the best (its neighbours kept for the parabola); every
+// other maximum, and a range end where the profile rises towards it (the true peak may lie
+// beyond), competes for the peak gap. Local maxima are never adjacent, so "outside +-1 px of the
+// best" holds by construction.
+template <bool kOwn, bool kRl>
+inline void sliceUpdate(const SliceArgs& g) {
+  const float d = g.d, dm1 = g.d - 1.f;
+  const float* __restrict h = g.h;
+  const float* __restrict mean_l = g.mean_l;
+  const float* __restrict inv_l = g.inv_l;
+  const float* __restrict sum_r = g.sum_r;
+  const float* __restrict inv_r = g.inv_r;
+  const float* __restrict elo = g.elo;
+  const float* __restrict ehi = g.ehi;
+  const float* __restrict act = g.act;
+  float* __restrict p1 = g.p1;
+  float* __restrict p2 = g.p2;
+  float* __restrict best = g.best;
+  float* __restrict best_d = g.best_d;
+  float* __restrict best_l = g.best_l;
+  float* __restrict best_r = g.best_r;
+  float* __restrict second = g.second;
+  float* __restrict rb_v = g.rb_v;
+  float* __restrict rb_d = g.rb_d;
+  for (int i = 0; i < g.n; ++i) {
+    const float s = (h[i] - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
+    const bool inr = (elo[i] <= d) & (d <= ehi[i]);
+    if (kOwn) {
+      const bool own = inr & (act[i] > 0.f);
+      const float a1 = p1[i], a2 = p2[i], bb = best[i];
+      const bool is_max = own & (d >= elo[i] + 2.f) & (a1 > a2) & (a1 >= s);
+      const bool new_best = is_max & (a1 > bb);
+      float cand = new_best ? bb : (is_max ? a1 : kNegInf);
+      const bool lo_end = own & (d == elo[i] + 1.f) & (a1 > s);
+      const bool hi_end = own & (d == ehi[i]) & (s > a1);
+      cand = std::max(cand, lo_end ? a1 : kNegInf);
+      cand = std::max(cand, hi_end ? s : kNegInf);
+      second[i] = std::max(second[i], cand);
+      best[i] = new_best ? a1 : bb;
+      best_d[i] = new_best ? dm1 : best_d[i];
+      best_l[i] = new_best ? a2 : best_l[i];
+      best_r[i] = new_best ? s : best_r[i];
+      p2[i] = own ? a1 : a2;
+      p1[i] = own ? s : a1;
+    }
+    if (kRl) {
+      // Right-to-left profile of right pixel x - d: S_RL(x - d, d) = S_LR(x, d). Strict > keeps
+      // the smallest disparity among equal values, whatever the order of the intervals.
+      const float rv = rb_v[i];
+      const bool up = inr & (s > rv);
+      rb_v[i] = up ? s : rv;
+      rb_d[i] = up ? d : rb_d[i];
+    }
+  }
+}
+
+ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true>(g); }
+ES_KERNEL void sliceOwn(const SliceArgs& g) { sliceUpdate<true, false>(g); }
+ES_KERNEL void sliceRl(const SliceArgs& g) { sliceUpdate<false, true>(g); }
 
 }  // namespace
 
@@ -173,7 +314,7 @@ struct RobustMatcher::Impl {
   cv::Mat state;         // CV_8U: 0 = undecided/failed so far, 1 = accepted
   cv::Mat window_idx;    // CV_8U window index that accepted
   LevelMaps maps;
-  cv::Mat tmp1, tmp2, tmp3;
+  cv::Mat tmp1, tmp2, tmp3, tmp4, code_before;
 
   std::mutex pool_mutex;
   std::vector<std::unique_ptr<Scratch>> pool;
@@ -229,16 +370,157 @@ struct LevelContext {
   MatchResult* out;
 };
 
-// Find with path halving in the "next unassigned disparity" links.
-inline int findNext(std::vector<int>& link, int i) {
-  while (link[i] != i) {
-    link[i] = link[link[i]];
-    i = link[i];
+/// Make the vertical window sums of disparity index k valid on columns [a, b] of row y: columns
+/// already computed for row y are kept, columns valid for row y - 1 are updated by one row in and
+/// one row out, the rest are summed afresh over the window's rows. All exact (integers in float).
+void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
+  const int d = c.dmin + k;
+  const int r = c.r;
+  VValidity& vv = s.valid[k];
+  if (vv.cur_row != y) {
+    if (vv.cur_row == y - 1) {
+      std::swap(vv.prev, vv.cur);
+    } else {
+      vv.prev.clear();
+    }
+    vv.cur.clear();
+    vv.cur_row = y;
   }
-  return i;
+  float* v = s.v.data() + static_cast<size_t>(k) * c.width;
+  // Pieces of [a, b] not yet computed for row y.
+  s.pieces.clear();
+  int x = a;
+  for (const Interval& iv : vv.cur) {
+    if (iv.b < x) continue;
+    if (iv.a > b) break;
+    if (iv.a > x) s.pieces.push_back({x, iv.a - 1});
+    x = std::max(x, iv.b + 1);
+  }
+  if (x <= b) s.pieces.push_back({x, b});
+  if (s.pieces.empty()) return;
+  auto fresh = [&](int fa, int fb) {
+    const int n = fb - fa + 1;
+    vSet(n, v + fa, c.lf->ptr<float>(y - r) + fa, c.rf->ptr<float>(y - r) + fa - d);
+    for (int yy = y - r + 1; yy <= y + r; ++yy) {
+      vAdd(n, v + fa, c.lf->ptr<float>(yy) + fa, c.rf->ptr<float>(yy) + fa - d);
+    }
+  };
+  auto running = [&](int ra, int rb) {
+    vRunning(rb - ra + 1, v + ra, c.lf->ptr<float>(y + r) + ra, c.rf->ptr<float>(y + r) + ra - d,
+             c.lf->ptr<float>(y - r - 1) + ra, c.rf->ptr<float>(y - r - 1) + ra - d);
+  };
+  for (const Interval& p : s.pieces) {
+    int px = p.a;
+    for (const Interval& iv : vv.prev) {
+      if (iv.b < px) continue;
+      if (iv.a > p.b) break;
+      if (iv.a > px) fresh(px, iv.a - 1);
+      const int e = std::min(p.b, iv.b);
+      running(std::max(px, iv.a), e);
+      px = e + 1;
+      if (px > p.b) break;
+    }
+    if (px <= p.b) fresh(px, p.b);
+  }
+  // cur := cur U pieces (both sorted and disjoint).
+  s.merged.clear();
+  size_t i = 0, j = 0;
+  while (i < vv.cur.size() || j < s.pieces.size()) {
+    const Interval next = (j >= s.pieces.size() || (i < vv.cur.size() && vv.cur[i].a < s.pieces[j].a))
+                              ? vv.cur[i++]
+                              : s.pieces[j++];
+    if (!s.merged.empty() && next.a <= s.merged.back().b + 1) {
+      s.merged.back().b = std::max(s.merged.back().b, next.b);
+    } else {
+      s.merged.push_back(next);
+    }
+  }
+  std::swap(vv.cur, s.merged);
+}
+
+/// For each disparity, the column intervals (whole blocks of kBlock columns, merged) holding a
+/// pixel selected by @p pick whose effective range contains it; clipped to the columns where both
+/// windows fit. Results in s.ivs / s.iv_start.
+template <typename Pick>
+void buildIntervals(const LevelContext& c, Scratch& s, Pick pick) {
+  const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
+  const int nb = (W + kBlock - 1) / kBlock;
+  std::fill(s.cover.begin(), s.cover.begin() + static_cast<size_t>(nb) * (nd + 1), 0);
+  for (int x = 0; x < W; ++x) {
+    if (!pick(x)) continue;
+    int* cv = s.cover.data() + static_cast<size_t>(x / kBlock) * (nd + 1);
+    ++cv[s.elo_i[x] - c.dmin];
+    --cv[s.ehi_i[x] - c.dmin + 1];
+  }
+  for (int b = 0; b < nb; ++b) {
+    int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
+    for (int k = 1; k < nd; ++k) cv[k] += cv[k - 1];
+  }
+  s.ivs.clear();
+  for (int k = 0; k < nd; ++k) {
+    s.iv_start[k] = static_cast<int>(s.ivs.size());
+    const int d = c.dmin + k;
+    const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
+    for (int b = 0; b < nb; ++b) {
+      if (s.cover[static_cast<size_t>(b) * (nd + 1) + k] <= 0) continue;
+      const int a = std::max(lo, b * kBlock), e = std::min(hi, (b + 1) * kBlock - 1);
+      if (a > e) continue;
+      if (s.ivs.size() > static_cast<size_t>(s.iv_start[k]) && s.ivs.back().b + 1 >= a) {
+        s.ivs.back().b = e;
+      } else {
+        s.ivs.push_back({a, e});
+      }
+    }
+  }
+  s.iv_start[nd] = static_cast<int>(s.ivs.size());
+}
+
+/// NCC slice of disparity index k over columns [a, b] of row y, fed to the peak tracker.
+template <bool kOwn, bool kRl>
+void runSlice(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
+  const int d = c.dmin + k;
+  const int r = c.r;
+  ensureV(c, s, k, y, a - r, b + r);
+  const int n = b - a + 1;
+  const float* v = s.v.data() + static_cast<size_t>(k) * c.width;
+  boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
+  SliceArgs g;
+  g.n = n;
+  g.d = static_cast<float>(d);
+  g.h = s.hsum.data();
+  g.mean_l = c.maps->mean_l.ptr<float>(y) + a;
+  g.inv_l = c.maps->inv_l.ptr<float>(y) + a;
+  g.sum_r = c.maps->sum_r.ptr<float>(y) + a - d;
+  g.inv_r = c.maps->inv_r.ptr<float>(y) + a - d;
+  g.elo = s.elo.data() + a;
+  g.ehi = s.ehi.data() + a;
+  g.act = s.act.data() + a;
+  g.p1 = s.p1.data() + a;
+  g.p2 = s.p2.data() + a;
+  g.best = s.best.data() + a;
+  g.best_d = s.best_d.data() + a;
+  g.best_l = s.best_l.data() + a;
+  g.best_r = s.best_r.data() + a;
+  g.second = s.second.data() + a;
+  g.rb_v = s.rb_v.data() + a - d;
+  g.rb_d = s.rb_d.data() + a - d;
+  if (kOwn && kRl) {
+    sliceOwnAndRl(g);
+  } else if (kOwn) {
+    sliceOwn(g);
+  } else {
+    sliceRl(g);
+  }
 }
 
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
+///
+/// Dense rows (most pixels still undecided, always the case at the first window) are matched in
+/// one pass: every NCC value of the row feeds both the pixel's own profile and the right-to-left
+/// profile of its right pixel. Sparse rows (larger windows, where only failed pixels remain) are
+/// matched in two passes, so the work follows the failed pixels instead of the image width:
+/// (A) the profiles of the active pixels only, which give each its best disparity; (B) for the
+/// right pixels q those bests point at, the right-to-left profiles S(q + d, d) over all d.
 void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
   const int r = c.r;
@@ -255,207 +537,139 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // Effective range of each pixel at this window: its requested range, cut so that both windows
   // lie inside the images. Active = not accepted yet, range of at least 3 values (an interior
   // maximum needs two neighbours), left patch with structure.
-  bool any_active = false;
-  int q_a = W, q_b = -1;
+  int n_active = 0, n_valid = 0;
   for (int x = 0; x < W; ++x) {
     int lo = kEmptyLo, hi = kEmptyHi;
     if (x >= r && x < W - r && rlo[x] <= rhi[x]) {
       lo = std::max(rlo[x], x - (W - 1 - r));
       hi = std::min(rhi[x], x - r);
-      if (lo > hi) { lo = kEmptyLo; hi = kEmptyHi; }
+      if (lo > hi) {
+        lo = kEmptyLo;
+        hi = kEmptyHi;
+      }
     }
     s.elo_i[x] = lo;
     s.ehi_i[x] = hi;
     s.elo[x] = static_cast<float>(std::max(lo, -1000000));
     s.ehi[x] = static_cast<float>(std::min(hi, 1000000));
-    uint8_t a = 0;
-    if (st[x] == 0 && lo <= hi) {
-      if (hi - lo < 2) {
-        code[x] = kCodeNoPeak;
-      } else if (!(gl[x] > gmin)) {
-        code[x] = kCodeRejectStructure;
-      } else {
-        a = 1;
-        any_active = true;
-        q_a = std::min(q_a, x - hi);
-        q_b = std::max(q_b, x - lo);
+    float a = 0.f;
+    if (lo <= hi) {
+      ++n_valid;
+      if (st[x] == 0) {
+        if (hi - lo < 2) {
+          code[x] = kCodeNoPeak;
+        } else if (!(gl[x] > gmin)) {
+          code[x] = kCodeRejectStructure;
+        } else {
+          a = 1.f;
+          ++n_active;
+        }
       }
     }
     s.act[x] = a;
   }
-  if (!any_active) return;
+  if (n_active == 0) return;
 
-  // first_x[k], last_x[k]: the first and last column whose effective range holds d = dmin + k.
-  // Assigned with "next unassigned" links so the cost is O(W + nd), not O(W * nd).
-  for (int k = 0; k <= nd; ++k) s.link[k] = k;
-  for (int k = 0; k < nd; ++k) { s.first_x[k] = W; s.last_x[k] = -1; }
   for (int x = 0; x < W; ++x) {
-    if (s.elo_i[x] > s.ehi_i[x]) continue;
-    int k = findNext(s.link, s.elo_i[x] - c.dmin);
-    while (k <= s.ehi_i[x] - c.dmin) {
-      s.first_x[k] = x;
-      s.link[k] = k + 1;
-      k = findNext(s.link, k + 1);
-    }
-  }
-  for (int k = 0; k <= nd; ++k) s.link[k] = k;
-  for (int x = W - 1; x >= 0; --x) {
-    if (s.elo_i[x] > s.ehi_i[x]) continue;
-    int k = findNext(s.link, s.elo_i[x] - c.dmin);
-    while (k <= s.ehi_i[x] - c.dmin) {
-      s.last_x[k] = x;
-      s.link[k] = k + 1;
-      k = findNext(s.link, k + 1);
-    }
+    s.p1[x] = s.p2[x] = kNegInf;
+    s.best[x] = s.second[x] = kNegInf;
+    s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
+    s.rb_v[x] = kNegInf;
+    s.rb_d[x] = 0.f;
   }
 
-  float* p1 = s.p1.data();
-  float* p2 = s.p2.data();
-  float* best = s.best.data();
-  float* best_d = s.best_d.data();
-  float* best_l = s.best_l.data();
-  float* best_r = s.best_r.data();
-  float* second = s.second.data();
-  float* rb_v = s.rb_v.data();
-  float* rb_d = s.rb_d.data();
-  const float* elo = s.elo.data();
-  const float* ehi = s.ehi.data();
-  const uint8_t* act = s.act.data();
-  for (int x = 0; x < W; ++x) {
-    p1[x] = p2[x] = kNegInf;
-    best[x] = second[x] = kNegInf;
-    best_d[x] = best_l[x] = best_r[x] = 0.f;
-    rb_v[x] = kNegInf;
-    rb_d[x] = 0.f;
-  }
-
-  const float* mean_l = c.maps->mean_l.ptr<float>(y);
-  const float* inv_l = c.maps->inv_l.ptr<float>(y);
-  const float* sum_r = c.maps->sum_r.ptr<float>(y);
-  const float* inv_r = c.maps->inv_r.ptr<float>(y);
-  const int w = c.w;
-
-  for (int k = 0; k < nd; ++k) {
-    const int d = c.dmin + k;
-    // Columns whose S(x, d) can matter: d in their range, and x - d a right pixel some active pixel
-    // may match (its own profile, or a right-to-left profile it needs for the consistency check).
-    const int na = std::max(s.first_x[k], q_a + d);
-    const int nb = std::min(s.last_x[k], q_b + d);
-    if (na > nb) {
-      s.v_row[k] = -1;
-      continue;
-    }
-    // Vertical window sums for columns [na - r, nb + r]; reuse the previous row's where valid.
-    float* v = s.v.data() + static_cast<size_t>(k) * W;
-    const int ca = na - r, cb = nb + r;
-    const bool have_prev = s.v_row[k] == y - 1;
-    const int pa = have_prev ? std::max(ca, s.v_a[k]) : 1;
-    const int pb = have_prev ? std::min(cb, s.v_b[k]) : 0;
-    auto fresh = [&](int a, int b) {
-      if (a > b) return;
-      for (int x = a; x <= b; ++x) v[x] = 0.f;
-      for (int yy = y - r; yy <= y + r; ++yy) {
-        const float* lr = c.lf->ptr<float>(yy);
-        const float* rr = c.rf->ptr<float>(yy) - d;
-        for (int x = a; x <= b; ++x) v[x] += lr[x] * rr[x];
+  const bool dense = 2 * n_active >= n_valid;
+  const float* gr = c.maps->gamma_r.ptr<float>(y);
+  const float delta_min = static_cast<float>(c.mp->delta_min);
+  const float min_ncc = static_cast<float>(c.mp->min_ncc);
+  // The discrimination test, shared by both paths: best peak above min_ncc and clear of the
+  // second by more than delta_min (a single peak is measured against the lowest NCC, -1).
+  auto peakGap = [&](int x) {
+    const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
+    return s.best[x] - comp;
+  };
+  if (dense) {
+    buildIntervals(c, s, [&](int x) { return s.elo_i[x] <= s.ehi_i[x]; });
+    for (int k = 0; k < nd; ++k) {
+      for (int i = s.iv_start[k]; i < s.iv_start[k + 1]; ++i) {
+        runSlice<true, true>(c, s, k, y, s.ivs[i].a, s.ivs[i].b);
       }
-    };
-    if (pa <= pb) {
-      const float* l_in = c.lf->ptr<float>(y + r);
-      const float* r_in = c.rf->ptr<float>(y + r) - d;
-      const float* l_out = c.lf->ptr<float>(y - r - 1);
-      const float* r_out = c.rf->ptr<float>(y - r - 1) - d;
-      for (int x = pa; x <= pb; ++x) v[x] += l_in[x] * r_in[x] - l_out[x] * r_out[x];
-      fresh(ca, pa - 1);
-      fresh(pb + 1, cb);
-    } else {
-      fresh(ca, cb);
     }
-    s.v_row[k] = y;
-    s.v_a[k] = ca;
-    s.v_b[k] = cb;
-
-    const int n = nb - na + 1;
-    float* h = s.hsum.data();
-    boxSumRow(v + ca, n, w, h, s.tmp_a.data(), s.tmp_b.data());
-
-    const float df = static_cast<float>(d);
-    const float dm1 = static_cast<float>(d - 1);
-    const float* sr = sum_r - d;
-    const float* ir = inv_r - d;
-    float* rbv = rb_v - d;
-    float* rbd = rb_d - d;
-    for (int i = 0; i < n; ++i) {
-      const int x = na + i;
-      const bool valid = elo[x] <= df && df <= ehi[x];
-      if (!valid) continue;
-      const float sv = (h[i] - mean_l[x] * sr[x]) * inv_l[x] * ir[x];
-      if (act[x]) {
-        const float a1 = p1[x], a2 = p2[x];
-        if (df >= elo[x] + 2.f) {
-          if (a1 > a2 && a1 >= sv) {  // interior local maximum at d - 1
-            if (a1 > best[x]) {
-              second[x] = std::max(second[x], best[x]);
-              best[x] = a1;
-              best_d[x] = dm1;
-              best_l[x] = a2;
-              best_r[x] = sv;
-            } else {
-              second[x] = std::max(second[x], a1);
-            }
-          }
-        } else if (df == elo[x] + 1.f && a1 > sv) {
-          // The range starts falling: a maximum at its lower end. Never the best (the true peak
-          // may lie outside the range), but it counts as a competitor for the peak gap.
-          second[x] = std::max(second[x], a1);
+  } else {
+    buildIntervals(c, s, [&](int x) { return s.act[x] > 0.f; });
+    for (int k = 0; k < nd; ++k) {
+      for (int i = s.iv_start[k]; i < s.iv_start[k + 1]; ++i) {
+        runSlice<true, false>(c, s, k, y, s.ivs[i].a, s.ivs[i].b);
+      }
+    }
+    // Phase B only for pixels that pass everything but the left-right check.
+    std::fill(s.cand.begin(), s.cand.end(), 0);
+    int qa = W, qb = -1;
+    for (int x = 0; x < W; ++x) {
+      if (s.act[x] <= 0.f || s.best[x] == kNegInf) continue;
+      const int q = x - static_cast<int>(s.best_d[x]);
+      const float delta = peakGap(x);
+      if (!(gr[q] > gmin) || !(delta > delta_min) || s.best[x] < min_ncc) continue;
+      s.cand[q] = 1;
+      qa = std::min(qa, q);
+      qb = std::max(qb, q);
+    }
+    if (qa <= qb) {
+      // Runs of candidate right pixels (gaps shorter than a window merged: the vertical sums of
+      // the gap are needed anyway for the horizontal window sums).
+      s.merged.clear();
+      for (int q = qa; q <= qb; ++q) {
+        if (!s.cand[q]) continue;
+        if (!s.merged.empty() && q <= s.merged.back().b + c.w) {
+          s.merged.back().b = q;
+        } else {
+          s.merged.push_back({q, q});
         }
-        if (df == ehi[x] && sv > a1) second[x] = std::max(second[x], sv);  // rising at the end
-        p2[x] = a1;
-        p1[x] = sv;
       }
-      if (sv > rbv[x]) {
-        rbv[x] = sv;
-        rbd[x] = df;
+      const std::vector<Interval> runs = s.merged;  // small; ensureV reuses s.merged
+      for (int k = 0; k < nd; ++k) {
+        const int d = c.dmin + k;
+        const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
+        for (const Interval& run : runs) {
+          const int a = std::max(lo, run.a + d), b = std::min(hi, run.b + d);
+          if (a <= b) runSlice<false, true>(c, s, k, y, a, b);
+        }
       }
     }
   }
 
   // Decide each active pixel.
-  const float* gr = c.maps->gamma_r.ptr<float>(y);
   float* disp = c.out->disparity.ptr<float>(y);
   float* conf = c.out->confidence.ptr<float>(y);
   uint8_t* stw = c.state->ptr<uint8_t>(y);
   uint8_t* widx = c.window_idx->ptr<uint8_t>(y);
-  const float delta_min = static_cast<float>(c.mp->delta_min);
   const float eps = static_cast<float>(c.mp->epsilon_px);
   for (int x = 0; x < W; ++x) {
-    if (!act[x]) continue;
-    if (best[x] == kNegInf) {
+    if (s.act[x] <= 0.f) continue;
+    if (s.best[x] == kNegInf) {
       code[x] = kCodeNoPeak;
       continue;
     }
-    const int bd = static_cast<int>(best_d[x]);
+    const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
     if (!(gr[q] > gmin)) {
       code[x] = kCodeRejectStructure;
       continue;
     }
-    // A single peak has no competitor: its gap is measured to the lowest possible NCC, -1.
-    const float comp = second[x] == kNegInf ? -1.f : second[x];
-    const float delta = best[x] - comp;
-    if (!(delta > delta_min)) {
+    const float delta = peakGap(x);
+    if (!(delta > delta_min) || s.best[x] < min_ncc) {
       code[x] = kCodeRejectPeakGap;
       continue;
     }
-    const float d_rl = rb_d[q];
+    const float d_rl = s.rb_d[q];
     if (!(std::fabs(static_cast<float>(bd) - d_rl) < eps)) {
       code[x] = kCodeRejectLeftRight;
       continue;
     }
     float sub = 0.f;
     if (c.mp->subpixel) {
-      const float den = best_l[x] - 2.f * best[x] + best_r[x];
-      if (den < 0.f) sub = std::clamp(0.5f * (best_l[x] - best_r[x]) / den, -0.5f, 0.5f);
+      const float den = s.best_l[x] - 2.f * s.best[x] + s.best_r[x];
+      if (den < 0.f) sub = std::clamp(0.5f * (s.best_l[x] - s.best_r[x]) / den, -0.5f, 0.5f);
     }
     disp[x] = static_cast<float>(bd) + sub;
     conf[x] = std::clamp(delta, 0.f, 1.f);
@@ -464,6 +678,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     widx[x] = static_cast<uint8_t>(c.level);
   }
 }
+
 
 void computeLevelMaps(const cv::Mat& lf, const cv::Mat& rf, const cv::Mat& lap_l,
                       const cv::Mat& lap_l2, const cv::Mat& lap_r, const cv::Mat& lap_r2, int w,
@@ -506,119 +721,75 @@ void computeLevelMaps(const cv::Mat& lf, const cv::Mat& rf, const cv::Mat& lap_l
   gamma(lap_r, lap_r2, m.gamma_r);
 }
 
-// Small-window cost of left pixel (x, y) at integer disparity d: mean |L - R| over a (2k+1)^2
-// window (k = half), or NCC. Returns +inf when the window leaves the image.
-float smallCost(const cv::Mat& lf, const cv::Mat& rf, int x, int y, int d, int k, bool ncc) {
-  if (x - k < 0 || x + k >= lf.cols || x - d - k < 0 || x - d + k >= lf.cols || y - k < 0 ||
-      y + k >= lf.rows) {
-    return std::numeric_limits<float>::infinity();
-  }
-  double sad = 0, sl = 0, sr = 0, sll = 0, srr = 0, slr = 0;
-  for (int yy = y - k; yy <= y + k; ++yy) {
-    const float* l = lf.ptr<float>(yy);
-    const float* r = rf.ptr<float>(yy) - d;
-    for (int xx = x - k; xx <= x + k; ++xx) {
-      sad += std::fabs(l[xx] - r[xx]);
-      sl += l[xx]; sr += r[xx]; sll += l[xx] * l[xx]; srr += r[xx] * r[xx]; slr += l[xx] * r[xx];
-    }
-  }
-  const double n = (2 * k + 1) * (2 * k + 1);
-  if (!ncc) return static_cast<float>(sad / n);
-  const double a = n * sll - sl * sl, b = n * srr - sr * sr;
-  if (a <= 0 || b <= 0) return 1.f;
-  return static_cast<float>(1.0 - (n * slr - sl * sr) / std::sqrt(a * b));
-}
-
-// Removes connected regions (4-neighbours whose disparities differ by at most tol) smaller than
-// max_area pixels. Returns the number removed.
-int64_t removeSpeckles(cv::Mat& disp, cv::Mat& code, int max_area, float tol, uint8_t mark) {
-  const int H = disp.rows, W = disp.cols;
-  std::vector<int> label(static_cast<size_t>(H) * W, -1);
-  std::vector<int> stack, members;
-  int64_t removed = 0;
-  for (int start = 0; start < H * W; ++start) {
-    if (label[start] >= 0 || std::isnan(disp.ptr<float>()[start])) continue;
-    members.clear();
-    stack.push_back(start);
-    label[start] = start;
-    while (!stack.empty()) {
-      const int i = stack.back();
-      stack.pop_back();
-      members.push_back(i);
-      const int y = i / W, x = i % W;
-      const float d = disp.ptr<float>()[i];
-      const int nb[4] = {x > 0 ? i - 1 : -1, x < W - 1 ? i + 1 : -1, y > 0 ? i - W : -1,
-                         y < H - 1 ? i + W : -1};
-      for (int j : nb) {
-        if (j < 0 || label[j] >= 0) continue;
-        const float e = disp.ptr<float>()[j];
-        if (std::isnan(e) || std::fabs(e - d) > tol) continue;
-        label[j] = start;
-        stack.push_back(j);
-      }
-    }
-    if (static_cast<int>(members.size()) < max_area) {
-      for (int i : members) {
-        disp.ptr<float>()[i] = std::numeric_limits<float>::quiet_NaN();
-        code.ptr<uint8_t>()[i] = mark;
-      }
-      removed += static_cast<int64_t>(members.size());
-    }
-  }
-  return removed;
-}
-
-void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& window_idx, const cv::Mat& lf,
-                          const cv::Mat& rf, MatchResult& out) {
-  const cv::Mat src = out.disparity.clone();
-  const int H = src.rows, W = src.cols;
-  const float jump = static_cast<float>(mp.edge_disparity_jump_px);
-  static const int kK = getenv("ES_K") ? atoi(getenv("ES_K")) : -1;
-  static const float kM = getenv("ES_M") ? atof(getenv("ES_M")) : 0.0f;
-  static const bool kNcc = getenv("ES_NCC") != nullptr;
+// Our measure against foreground fattening (see the block comment at the top of this file and
+// notes/matcher_design.md): a pixel accepted with a window of width w is rejected when the accepted
+// disparities inside that same window (judged on the map before this step) reach more than
+// edge_disparity_jump_px away from its own disparity, i.e. when its window straddles a depth edge.
+// Pixels accepted with a window wider than edge_window_max_px are also rejected when their w_min
+// window straddles an edge. Min and max over each window size are grey-level erosions/dilations of
+// the map (invalid pixels neutral), so the step costs O(pixels) per window size.
+void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
+                          MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
+                          cv::Mat& hi) {
+  const int H = out.disparity.rows, W = out.disparity.cols;
+  const float inf = std::numeric_limits<float>::infinity();
+  lo_src.create(H, W, CV_32F);
+  hi_src.create(H, W, CV_32F);
   for (int y = 0; y < H; ++y) {
+    const float* d = out.disparity.ptr<float>(y);
+    float* a = lo_src.ptr<float>(y);
+    float* b = hi_src.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
-      const float d = src.at<float>(y, x);
-      if (std::isnan(d)) continue;
-      const int r = (mp.window_min_px + window_idx.at<uint8_t>(y, x) * mp.window_step_px) / 2;
-      float lo = d, hi = d;
-      int nlo = 0, nhi = 0, nvalid = 0;
-      static const float kC = getenv("ES_C") ? atof(getenv("ES_C")) : 0.f;
-      static const float kS = getenv("ES_S") ? atof(getenv("ES_S")) : 0.f;
-      for (int yy = std::max(0, y - r); yy <= std::min(H - 1, y + r); ++yy) {
-        const float* row = src.ptr<float>(yy);
-        for (int xx = std::max(0, x - r); xx <= std::min(W - 1, x + r); ++xx) {
-          if (std::isnan(row[xx])) continue;
-          ++nvalid;
-          const float tol = jump + kS * std::max(std::abs(xx - x), std::abs(yy - y));
-          if (row[xx] < d - tol) { ++nlo; lo = std::min(lo, row[xx]); }
-          if (row[xx] > d + tol) { ++nhi; hi = std::max(hi, row[xx]); }
+      const bool v = !std::isnan(d[x]);
+      a[x] = v ? d[x] : inf;
+      b[x] = v ? d[x] : -inf;
+    }
+  }
+  const float jump = static_cast<float>(mp.edge_disparity_jump_px);
+  const int limit_w = mp.edge_window_max_px;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  // Rejections are applied after all levels are judged, so every test sees the original map.
+  cv::Mat reject(H, W, CV_8U, cv::Scalar(0));
+  for (int level = 0; level < num_levels; ++level) {
+    const int w = mp.window_min_px + level * mp.window_step_px;
+    bool any = level == 0 && limit_w > 0;
+    for (int y = 0; y < H && !any; ++y) {
+      const uint8_t* c = out.code.ptr<uint8_t>(y);
+      const uint8_t* k = window_idx.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (c[x] >= kCodeAcceptedBase && k[x] == level) { any = true; break; }
+      }
+    }
+    if (!any) continue;
+    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(w, w));
+    cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
+    cv::dilate(hi_src, hi, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(-inf));
+    for (int y = 0; y < H; ++y) {
+      const float* d = out.disparity.ptr<float>(y);
+      const uint8_t* c = out.code.ptr<uint8_t>(y);
+      const uint8_t* k = window_idx.ptr<uint8_t>(y);
+      const float* a = lo.ptr<float>(y);
+      const float* b = hi.ptr<float>(y);
+      uint8_t* rj = reject.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (c[x] < kCodeAcceptedBase) continue;
+        const bool straddles = d[x] - a[x] > jump || b[x] - d[x] > jump;
+        if (!straddles) continue;
+        if (jump > 0.f && k[x] == level) rj[x] = 1;
+        // Near an edge (its w_min window straddles it), only windows up to limit_w may accept.
+        if (level == 0 && limit_w > 0 && mp.window_min_px + k[x] * mp.window_step_px > limit_w) {
+          rj[x] = 1;
         }
       }
-      const int need = std::max(1, static_cast<int>(std::ceil(kC * (2 * r + 1) * (2 * r + 1))));
-      if (nlo < need) lo = d;
-      if (nhi < need) hi = d;
-      bool reject = false;
-      if (d - lo > 0 || hi - d > 0) {
-        reject = true;
-        if (kK >= 0) {
-          const int di = static_cast<int>(std::lround(d));
-          const float own = smallCost(lf, rf, x, y, di, kK, kNcc);
-          bool ok = std::isfinite(own);
-          if (ok && d - lo > jump) {
-            ok = own * (1.f + kM) < smallCost(lf, rf, x, y, static_cast<int>(std::lround(lo)), kK, kNcc);
-          }
-          if (ok && hi - d > jump) {
-            ok = own * (1.f + kM) < smallCost(lf, rf, x, y, static_cast<int>(std::lround(hi)), kK, kNcc);
-          }
-          reject = !ok;
-        }
-      }
-      if (reject) {
-        out.disparity.at<float>(y, x) = std::numeric_limits<float>::quiet_NaN();
-        out.confidence.at<float>(y, x) = 0.f;
-        out.code.at<uint8_t>(y, x) = kCodeRejectEdge;
-      }
+    }
+  }
+  for (int y = 0; y < H; ++y) {
+    const uint8_t* rj = reject.ptr<uint8_t>(y);
+    for (int x = 0; x < W; ++x) {
+      if (!rj[x]) continue;
+      out.disparity.at<float>(y, x) = nan;
+      out.confidence.at<float>(y, x) = 0.f;
+      out.code.at<uint8_t>(y, x) = kCodeRejectEdge;
     }
   }
 }
@@ -727,19 +898,16 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       std::unique_ptr<Scratch> s = im.acquire();
       s->ensure(W, nd);
       for (int stripe = rg.start; stripe < rg.end; ++stripe) {
-        std::fill(s->v_row.begin(), s->v_row.end(), -1);
+        s->resetV();
         const int y_end = std::min(H, (stripe + 1) * kStripeRows);
         for (int y = stripe * kStripeRows; y < y_end; ++y) processRow(c, y, *s);
       }
       im.release(std::move(s));
     });
   }
-  static const int kSpeckle = getenv("ES_SP") ? atoi(getenv("ES_SP")) : 0;
-  static const float kSpeckleTol = getenv("ES_SPT") ? atof(getenv("ES_SPT")) : 1.f;
-  if (kSpeckle > 0) removeSpeckles(out.disparity, out.code, kSpeckle, kSpeckleTol, kCodeRejectOutlier);
-  static const bool kOutFirst = getenv("ES_ORDER") != nullptr;
-  if (kOutFirst && filter_params_.remove_outliers) removeIsolatedOutliers(out.disparity, out.code, filter_params_);
-  if (mp.edge_disparity_jump_px > 0.0) rejectEdgeStraddlers(mp, im.window_idx, im.lf, im.rf, out);
+  if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
+    rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4);
+  }
   const auto t1 = std::chrono::steady_clock::now();
 
   for (int y = 0; y < H; ++y) {

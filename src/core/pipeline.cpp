@@ -46,7 +46,10 @@ std::string PipelineParams::validate() const {
       {"temporal", temporal.validate()},     {"output", output.validate()},
   };
   for (const auto& c : checks) {
-    if (!c.second.empty()) return std::string(c.first) + ": " + c.second;
+    if (c.second.empty()) continue;
+    const std::string section = c.first;
+    if (c.second.find(section + ".") != std::string::npos) return c.second;
+    return section + ": " + c.second;
   }
   return {};
 }

@@ -5,10 +5,9 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <vector>
-
-#include <opencv2/imgproc.hpp>
 
 namespace endo_stereo {
 

@@ -2,9 +2,8 @@
 
 #include <algorithm>
 #include <cstring>
-#include <sstream>
-
 #include <opencv2/imgproc.hpp>
+#include <sstream>
 
 namespace endo_stereo {
 
@@ -15,17 +14,18 @@ bool fail(std::string* error, const std::string& msg) {
   return false;
 }
 
-std::string typeName(int type) {
-  return cv::typeToString(type);
-}
+std::string typeName(int type) { return cv::typeToString(type); }
 
 }  // namespace
 
 std::string toString(InterlaceMode mode) {
   switch (mode) {
-    case InterlaceMode::kNone: return "none";
-    case InterlaceMode::kDownsample: return "downsample";
-    case InterlaceMode::kField: return "field";
+    case InterlaceMode::kNone:
+      return "none";
+    case InterlaceMode::kDownsample:
+      return "downsample";
+    case InterlaceMode::kField:
+      return "field";
   }
   return "none";
 }
@@ -81,8 +81,7 @@ const char* kSupported = "mono8, mono16, bgr8, rgb8, bgra8, rgba8, yuv422 (UYVY)
 }
 
 bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, size_t step,
-                  const std::string& encoding, bool big_endian, cv::Mat& out,
-                  std::string* error) {
+                  const std::string& encoding, bool big_endian, cv::Mat& out, std::string* error) {
   const int type = encodingToCvType(encoding);
   if (type < 0) {
     return fail(error, "unsupported encoding '" + encoding + "' (supported: " + kSupported + ")");
@@ -98,7 +97,13 @@ bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, 
         << " x " << CV_ELEM_SIZE(type) << " bytes per pixel = " << row_bytes;
     return fail(error, msg.str());
   }
-  if (data == nullptr || data_size < step * size_t(height)) {
+  if (step % CV_ELEM_SIZE1(type) != 0) {  // cv::Mat would throw on such a step
+    msg << "image (" << encoding << "): step " << step << " is not a multiple of "
+        << CV_ELEM_SIZE1(type) << " bytes";
+    return fail(error, msg.str());
+  }
+  // Compared by division: step * height can wrap around for a corrupt step.
+  if (data == nullptr || data_size / size_t(height) < step) {
     msg << "image (" << encoding << "): data holds " << data_size << " bytes, step " << step
         << " x height " << height << " needs " << step * size_t(height);
     return fail(error, msg.str());
@@ -107,7 +112,8 @@ bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, 
   if (big_endian && CV_ELEM_SIZE1(type) == 2) {
     for (int y = 0; y < out.rows; ++y) {
       uint16_t* p = out.ptr<uint16_t>(y);
-      for (int x = 0; x < out.cols * out.channels(); ++x) p[x] = uint16_t((p[x] >> 8) | (p[x] << 8));
+      for (int x = 0; x < out.cols * out.channels(); ++x)
+        p[x] = uint16_t((p[x] >> 8) | (p[x] << 8));
     }
   }
   return true;
@@ -121,8 +127,8 @@ bool convertImage(const cv::Mat& raw, const std::string& e, int mono16_bits, cv:
   }
   if (raw.empty()) return fail(error, "image (" + e + "): empty");
   if (raw.type() != type) {
-    return fail(error, "image (" + e + "): stored as " + typeName(raw.type()) + ", the encoding needs " +
-                           typeName(type));
+    return fail(error, "image (" + e + "): stored as " + typeName(raw.type()) +
+                           ", the encoding needs " + typeName(type));
   }
   if (e == "mono8" || e == "8UC1") {
     raw.copyTo(gray);

@@ -3,11 +3,10 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <sstream>
-#include <stdexcept>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
+#include <sstream>
+#include <stdexcept>
 
 #include "uncalibrated_rectification.hpp"
 
@@ -17,9 +16,12 @@ namespace endo_stereo {
 
 std::string toString(RectifyMode mode) {
   switch (mode) {
-    case RectifyMode::kCalibrated: return "calibrated";
-    case RectifyMode::kUncalibrated: return "uncalibrated";
-    case RectifyMode::kPassThrough: return "pass_through";
+    case RectifyMode::kCalibrated:
+      return "calibrated";
+    case RectifyMode::kUncalibrated:
+      return "uncalibrated";
+    case RectifyMode::kPassThrough:
+      return "pass_through";
   }
   return "calibrated";
 }
@@ -39,9 +41,12 @@ bool parseRectifyMode(const std::string& t, RectifyMode* m) {
 
 std::string toString(UncalibratedMethod m) {
   switch (m) {
-    case UncalibratedMethod::kAuto: return "auto";
-    case UncalibratedMethod::kHomography: return "homography";
-    case UncalibratedMethod::kPolar: return "polar";
+    case UncalibratedMethod::kAuto:
+      return "auto";
+    case UncalibratedMethod::kHomography:
+      return "homography";
+    case UncalibratedMethod::kPolar:
+      return "polar";
   }
   return "auto";
 }
@@ -65,11 +70,14 @@ std::string RectifyParams::validate() const {
     m << "rectify." << field << ": must be " << range << ", got " << v;
     return m.str();
   };
-  if (!(alpha == -1.0 || (alpha >= 0.0 && alpha <= 1.0))) return bad("alpha", "-1 or in [0, 1]", alpha);
+  if (!(alpha == -1.0 || (alpha >= 0.0 && alpha <= 1.0)))
+    return bad("alpha", "-1 or in [0, 1]", alpha);
   if (output_width_px < 0) return bad("output_width_px", ">= 0", output_width_px);
   if (output_height_px < 0) return bad("output_height_px", ">= 0", output_height_px);
-  if (!(output_scale_x > 0.0 && output_scale_x <= 4.0)) return bad("output_scale_x", "in (0, 4]", output_scale_x);
-  if (!(output_scale_y > 0.0 && output_scale_y <= 4.0)) return bad("output_scale_y", "in (0, 4]", output_scale_y);
+  if (!(output_scale_x > 0.0 && output_scale_x <= 4.0))
+    return bad("output_scale_x", "in (0, 4]", output_scale_x);
+  if (!(output_scale_y > 0.0 && output_scale_y <= 4.0))
+    return bad("output_scale_y", "in (0, 4]", output_scale_y);
   if (sift_features < 0) return bad("sift_features", ">= 0", sift_features);
   if (!(ratio_test > 0.0 && ratio_test < 1.0)) return bad("ratio_test", "in (0, 1)", ratio_test);
   if (!(ransac_threshold_px > 0.0)) return bad("ransac_threshold_px", "> 0", ransac_threshold_px);
@@ -78,11 +86,14 @@ std::string RectifyParams::validate() const {
   }
   if (min_inliers < 8) return bad("min_inliers", ">= 8", min_inliers);
   if (estimation_frames < 1) return bad("estimation_frames", ">= 1", estimation_frames);
-  if (!(reestimate_threshold_px >= 0.0)) return bad("reestimate_threshold_px", ">= 0", reestimate_threshold_px);
+  if (!(reestimate_threshold_px >= 0.0))
+    return bad("reestimate_threshold_px", ">= 0", reestimate_threshold_px);
   if (reestimate_after < 1) return bad("reestimate_after", ">= 1", reestimate_after);
   if (!(polar_auto_distance > 0.0)) return bad("polar_auto_distance", "> 0", polar_auto_distance);
-  if (!(focal_px >= 0.0) || !std::isfinite(focal_px)) return bad("focal_px", ">= 0 (0 = unknown)", focal_px);
-  if (!(baseline_m >= 0.0) || !std::isfinite(baseline_m)) return bad("baseline_m", ">= 0 (0 = unknown)", baseline_m);
+  if (!(focal_px >= 0.0) || !std::isfinite(focal_px))
+    return bad("focal_px", ">= 0 (0 = unknown)", focal_px);
+  if (!(baseline_m >= 0.0) || !std::isfinite(baseline_m))
+    return bad("baseline_m", ">= 0 (0 = unknown)", baseline_m);
   if (quality_stride < 0) return bad("quality_stride", ">= 0 (0 = never)", quality_stride);
   if (!(quality_warn_px > 0.0)) return bad("quality_warn_px", "> 0", quality_warn_px);
   if (quality_max_features < 0) return bad("quality_max_features", ">= 0", quality_max_features);
@@ -99,8 +110,8 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
   detail::siftMatches(left_gray, right_gray, max_features, ratio_test, &m);
   cv::Matx33d F;
   if (!detail::robustFundamental(m, ransac_threshold_px, 0.999, &F, &inl)) {
-    q.message = "too few feature matches to measure the rectification (" +
-                std::to_string(m.size()) + ")";
+    q.message =
+        "too few feature matches to measure the rectification (" + std::to_string(m.size()) + ")";
     return q;
   }
   std::vector<double> dy(inl.size());
@@ -228,20 +239,21 @@ struct StereoRectifier::Impl {
         P_l = cv::Matx34d(p1);
         P_r = cv::Matx34d(p2);
         if (std::abs(P_r(1, 3)) > std::abs(P_r(0, 3))) {
-          return fail(error, "T_right_left: vertical stereo (baseline mostly along y) is not supported");
+          return fail(error,
+                      "T_right_left: vertical stereo (baseline mostly along y) is not supported");
         }
       }
       const int map_type = params.fixed_point_maps ? CV_16SC2 : CV_32FC1;
       if (fisheye) {
-        cv::fisheye::initUndistortRectifyMap(cv::Mat(K_l), D_l, cv::Mat(R_l), cv::Mat(P_l), out_size,
-                                             map_type, map_l1, map_l2);
-        cv::fisheye::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r), out_size,
-                                             map_type, map_r1, map_r2);
+        cv::fisheye::initUndistortRectifyMap(cv::Mat(K_l), D_l, cv::Mat(R_l), cv::Mat(P_l),
+                                             out_size, map_type, map_l1, map_l2);
+        cv::fisheye::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r),
+                                             out_size, map_type, map_r1, map_r2);
       } else {
-        cv::initUndistortRectifyMap(cv::Mat(K_l), D_l, cv::Mat(R_l), cv::Mat(P_l), out_size, map_type,
-                                    map_l1, map_l2);
-        cv::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r), out_size, map_type,
-                                    map_r1, map_r2);
+        cv::initUndistortRectifyMap(cv::Mat(K_l), D_l, cv::Mat(R_l), cv::Mat(P_l), out_size,
+                                    map_type, map_l1, map_l2);
+        cv::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r), out_size,
+                                    map_type, map_r1, map_r2);
       }
     } catch (const cv::Exception& ex) {
       return fail(error, std::string("rectification maps could not be built: ") + ex.what());
@@ -346,8 +358,12 @@ struct StereoRectifier::Impl {
     detail::epipoles(F_new, &el, &er);
     std::string method;
     switch (params.method) {
-      case UncalibratedMethod::kHomography: method = "homography"; break;
-      case UncalibratedMethod::kPolar: method = "polar"; break;
+      case UncalibratedMethod::kHomography:
+        method = "homography";
+        break;
+      case UncalibratedMethod::kPolar:
+        method = "polar";
+        break;
       case UncalibratedMethod::kAuto:
         method = std::min(detail::epipoleDistance(el, size), detail::epipoleDistance(er, size)) >
                          params.polar_auto_distance
@@ -359,7 +375,7 @@ struct StereoRectifier::Impl {
     PolarRectification pol;
     std::string err;
     if (method == "homography") {
-      if (!detail::homographyRectification(F_new, size, &hl, &hr, &err)) {
+      if (!detail::homographyRectification(F_new, inl, size, &hl, &hr, &err)) {
         *why = "homography rectification failed: " + err;
         return false;
       }
@@ -377,7 +393,8 @@ struct StereoRectifier::Impl {
         const cv::Vec3d qb = hr * cv::Vec3d(inl.right[i].x, inl.right[i].y, 1);
         a = cv::Point2d(qa[0] / qa[2], qa[1] / qa[2]);
         b = cv::Point2d(qb[0] / qb[2], qb[1] / qb[2]);
-      } else if (!pol.toRectified(true, inl.left[i], &a) || !pol.toRectified(false, inl.right[i], &b)) {
+      } else if (!pol.toRectified(true, inl.left[i], &a) ||
+                 !pol.toRectified(false, inl.right[i], &b)) {
         continue;
       }
       dy.push_back(std::abs(a.y - b.y));
@@ -402,8 +419,10 @@ struct StereoRectifier::Impl {
       cv::Mat eye = cv::Mat::eye(3, 3, CV_64F);
       // initUndistortRectifyMap with K = I, no distortion, R = H, P = I builds the inverse warp
       // of a homography as a remap table (the same remap path as calibrated mode).
-      cv::initUndistortRectifyMap(eye, cv::Mat(), cv::Mat(H_l), eye, size, map_type, map_l1, map_l2);
-      cv::initUndistortRectifyMap(eye, cv::Mat(), cv::Mat(H_r), eye, size, map_type, map_r1, map_r2);
+      cv::initUndistortRectifyMap(eye, cv::Mat(), cv::Mat(H_l), eye, size, map_type, map_l1,
+                                  map_l2);
+      cv::initUndistortRectifyMap(eye, cv::Mat(), cv::Mat(H_r), eye, size, map_type, map_r1,
+                                  map_r2);
       out_size = size;
       homographyGeometry(size);
     } else {
@@ -445,8 +464,9 @@ struct StereoRectifier::Impl {
         cv::fisheye::undistortPoints(in, out, K, D, R, P);
       } else {
         // Iterate to convergence: the default 5 iterations leave ~1e-3 px under strong distortion.
-        cv::undistortPoints(in, out, K, D, R, P,
-                            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-14));
+        cv::undistortPoints(
+            in, out, K, D, R, P,
+            cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-14));
       }
       *rect = out[0];
       return true;
@@ -510,8 +530,8 @@ struct StereoRectifier::Impl {
     q.warning = q.valid && q.median_offset_px > params.quality_warn_px;
     if (q.warning && q.message.empty()) {
       std::ostringstream m;
-      m << "rectification residual: median vertical offset " << q.median_offset_px
-        << " px exceeds " << params.quality_warn_px << " px (check the calibration)";
+      m << "rectification residual: median vertical offset " << q.median_offset_px << " px exceeds "
+        << params.quality_warn_px << " px (check the calibration)";
       q.message = m.str();
     }
     quality = q;
@@ -582,7 +602,8 @@ struct StereoRectifier::Impl {
       if (!q.valid) q.message = "too few feature matches to measure the rectification";
       recordQuality(q);
       if (q.valid && state == UncalState::kFrozen && params.reestimate_threshold_px > 0) {
-        bad_measurements = q.median_offset_px > params.reestimate_threshold_px ? bad_measurements + 1 : 0;
+        bad_measurements =
+            q.median_offset_px > params.reestimate_threshold_px ? bad_measurements + 1 : 0;
         if (bad_measurements >= params.reestimate_after) {
           // Drift: pool afresh; the current rectification stays in use until a new one is found.
           state = UncalState::kCollecting;
@@ -613,16 +634,17 @@ void StereoRectifier::setParams(const RectifyParams& params) {
   a.quality_stride = b.quality_stride = 0;
   a.quality_warn_px = b.quality_warn_px = 1;
   a.quality_max_features = b.quality_max_features = 0;
-  const bool same = a.mode == b.mode && a.alpha == b.alpha && a.zero_disparity == b.zero_disparity &&
-                    a.output_width_px == b.output_width_px && a.output_height_px == b.output_height_px &&
-                    a.output_scale_x == b.output_scale_x && a.output_scale_y == b.output_scale_y &&
-                    a.fixed_point_maps == b.fixed_point_maps && a.method == b.method &&
-                    a.sift_features == b.sift_features && a.ratio_test == b.ratio_test &&
-                    a.ransac_threshold_px == b.ransac_threshold_px &&
-                    a.ransac_confidence == b.ransac_confidence && a.min_inliers == b.min_inliers &&
-                    a.estimation_frames == b.estimation_frames &&
-                    a.polar_auto_distance == b.polar_auto_distance && a.focal_px == b.focal_px &&
-                    a.baseline_m == b.baseline_m;
+  const bool same =
+      a.mode == b.mode && a.alpha == b.alpha && a.zero_disparity == b.zero_disparity &&
+      a.output_width_px == b.output_width_px && a.output_height_px == b.output_height_px &&
+      a.output_scale_x == b.output_scale_x && a.output_scale_y == b.output_scale_y &&
+      a.fixed_point_maps == b.fixed_point_maps && a.method == b.method &&
+      a.sift_features == b.sift_features && a.ratio_test == b.ratio_test &&
+      a.ransac_threshold_px == b.ransac_threshold_px &&
+      a.ransac_confidence == b.ransac_confidence && a.min_inliers == b.min_inliers &&
+      a.estimation_frames == b.estimation_frames &&
+      a.polar_auto_distance == b.polar_auto_distance && a.focal_px == b.focal_px &&
+      a.baseline_m == b.baseline_m;
   impl_->params = params;
   if (!same) {
     impl_->maps_valid = false;
@@ -717,7 +739,8 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
             break;
           }
         }
-        s.remapPair(left_gray, right_gray, left_bgr, left_rect_gray, right_rect_gray, left_rect_bgr);
+        s.remapPair(left_gray, right_gray, left_bgr, left_rect_gray, right_rect_gray,
+                    left_rect_bgr);
         if (s.measureNow()) {
           s.recordQuality(measureRowAlignment(left_rect_gray, right_rect_gray,
                                               s.params.quality_max_features, s.params.ratio_test,
@@ -749,8 +772,8 @@ bool StereoRectifier::rectifyImage(bool left, const cv::Mat& raw, cv::Mat& recti
   if (!have) return fail(error, "rectifyImage: no rectification available yet");
   const cv::Size expected = s.active == "calibrated" ? s.maps_in_size : s.uncal_size;
   if (raw.size() != expected) {
-    return fail(error, "rectifyImage: image is " + sizeStr(raw.size()) + ", expected " +
-                           sizeStr(expected));
+    return fail(
+        error, "rectifyImage: image is " + sizeStr(raw.size()) + ", expected " + sizeStr(expected));
   }
   cv::remap(raw, rectified, left ? s.map_l1 : s.map_r1, left ? s.map_l2 : s.map_r2, interpolation,
             cv::BORDER_CONSTANT);

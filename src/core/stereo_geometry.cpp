@@ -60,8 +60,8 @@ std::string CameraCalibration::validate(const std::string& name) const {
   const size_t n = D.size();
   if (distortion_model == "plumb_bob" || distortion_model == "rational_polynomial") {
     if (n != 0 && n != 4 && n != 5 && n != 8 && n != 12 && n != 14) {
-      msg << name << ".D: " << distortion_model
-          << " needs 4, 5, 8, 12 or 14 coefficients, got " << n;
+      msg << name << ".D: " << distortion_model << " needs 4, 5, 8, 12 or 14 coefficients, got "
+          << n;
       return msg.str();
     }
   } else if (distortion_model == "equidistant" || distortion_model == "fisheye") {
@@ -82,8 +82,8 @@ std::string CameraCalibration::validate(const std::string& name) const {
     const cv::Matx33d should_be_eye = R * R.t();
     double err = cv::norm(should_be_eye - cv::Matx33d::eye(), cv::NORM_INF);
     if (err > 1e-3 || cv::determinant(R) <= 0.0) {
-      msg << name << ".R: not a rotation (|R R^T - I| = " << err << ", det = "
-          << cv::determinant(R) << ")";
+      msg << name << ".R: not a rotation (|R R^T - I| = " << err << ", det = " << cv::determinant(R)
+          << ")";
       return msg.str();
     }
   }
@@ -164,8 +164,7 @@ std::string StereoCalibration::validate() const {
     return msg.str();
   }
   if (left.hasProjection() != right.hasProjection()) {
-    return std::string(left.hasProjection() ? "right" : "left") +
-           ".P: given for one camera only";
+    return std::string(left.hasProjection() ? "right" : "left") + ".P: given for one camera only";
   }
   if (left.hasProjection()) {
     const cv::Matx34d pl = left.P, pr = right.P;
@@ -193,8 +192,7 @@ std::string StereoCalibration::validate() const {
   }
   if (has_extrinsics) {
     if (!allFinite(R_right_left)) return "R_right_left: contains NaN or infinity";
-    const double err =
-        cv::norm(R_right_left * R_right_left.t() - cv::Matx33d::eye(), cv::NORM_INF);
+    const double err = cv::norm(R_right_left * R_right_left.t() - cv::Matx33d::eye(), cv::NORM_INF);
     if (err > 1e-3 || cv::determinant(R_right_left) <= 0.0) {
       msg << "R_right_left: not a rotation (|R R^T - I| = " << err << ")";
       return msg.str();

@@ -38,10 +38,14 @@ std::string TemporalParams::validate() const {
     return rangeMessage("prior_radius_px", "[1, 64]", prior_radius_px);
   if (prior_neighbourhood_px < 0 || prior_neighbourhood_px > 16)
     return rangeMessage("prior_neighbourhood_px", "[0, 16]", prior_neighbourhood_px);
+  if (prior_edge_zone_px < 0 || prior_edge_zone_px > 64)
+    return rangeMessage("prior_edge_zone_px", "[0, 64]", prior_edge_zone_px);
   if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
     return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
   if (max_prior_failures < 1 || max_prior_failures > 1000)
     return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
+  if (refresh_period_frames < 0 || refresh_period_frames > 1000)
+    return rangeMessage("refresh_period_frames", "[0, 1000]", refresh_period_frames);
   if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
     return rangeMessage("max_gap_s", "(0, inf)", max_gap_s);
   if (fused_max_age_frames < 0 || fused_max_age_frames > 65534)
@@ -95,6 +99,7 @@ void TemporalPrior::reset() {
   age_.release();
   failures_.release();
   narrowed_.release();
+  frame_count_ = 0;
   stats_ = TemporalPriorStats();
 }
 
@@ -148,30 +153,52 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     return false;
   }
 
+  // Min / max filters spread each prior over a neighbourhood; the default border values of
+  // erode / dilate (+inf / -inf) leave image borders neutral.
+  const int e = params_.prior_edge_zone_px;
+  const bool edge_zone = e > params_.prior_neighbourhood_px;
+  if (edge_zone) {
+    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * e + 1, 2 * e + 1));
+    cv::erode(lo_f_, lo_e_, kernel);
+    cv::dilate(hi_f_, hi_e_, kernel);
+  }
   const int k = params_.prior_neighbourhood_px;
   if (k > 0) {
-    // Min / max filters spread each prior to its neighbourhood; the default border values of
-    // erode / dilate (+inf / -inf) leave image borders neutral.
     const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * k + 1, 2 * k + 1));
     cv::erode(lo_f_, lo_f_, kernel);
     cv::dilate(hi_f_, hi_f_, kernel);
   }
+  const float edge_jump = 2.0f * float(params_.prior_radius_px);
 
   range.lo.create(size, CV_16SC1);
   range.hi.create(size, CV_16SC1);
   const float r = float(params_.prior_radius_px);
+  const int period = params_.refresh_period_frames;
+  const int refresh_phase = period > 0 ? int(frame_count_ % period) : -1;
   int64_t width_sum = 0;
   for (int y = 0; y < size.height; ++y) {
+    const bool refresh = period > 0 && (y / kRefreshStripeRows) % period == refresh_phase;
     const float* lo_f = lo_f_.ptr<float>(y);
     const float* hi_f = hi_f_.ptr<float>(y);
+    const float* lo_e = edge_zone ? lo_e_.ptr<float>(y) : nullptr;
+    const float* hi_e = edge_zone ? hi_e_.ptr<float>(y) : nullptr;
     int16_t* lo = range.lo.ptr<int16_t>(y);
     int16_t* hi = range.hi.ptr<int16_t>(y);
     uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
     for (int x = 0; x < size.width; ++x) {
       int a = min_disparity, b = max_disparity;
-      if (lo_f[x] < 0.5f * kNoPriorLo) {
-        a = std::max(min_disparity, int(std::floor(lo_f[x] - r)));
-        b = std::min(max_disparity, int(std::ceil(hi_f[x] + r)));
+      if (refresh) {
+        ++stats_.refresh_pixels;
+      } else if (lo_f[x] < 0.5f * kNoPriorLo) {
+        float lo_d = lo_f[x], hi_d = hi_f[x];
+        // Near a depth edge in the priors, the span of both sides (the edge may have moved).
+        if (edge_zone && hi_e[x] - lo_e[x] > edge_jump) {
+          lo_d = lo_e[x];
+          hi_d = hi_e[x];
+          ++stats_.edge_zone_pixels;
+        }
+        a = std::max(min_disparity, int(std::floor(lo_d - r)));
+        b = std::min(max_disparity, int(std::ceil(hi_d + r)));
         // A prior (sub-pixel) just outside the full range can leave nothing: search it all.
         if (a > b) {
           a = min_disparity;
@@ -226,19 +253,23 @@ void TemporalPrior::update(const cv::Mat& disparity) {
         fail[x] = 0;
         hits += was_narrowed;
       } else {
-        age[x] = saturatingIncrement(age[x]);
         if (was_narrowed) {
+          age[x] = saturatingIncrement(age[x]);
           ++misses;
           if (fail[x] < 255) ++fail[x];
+        } else {
+          // The whole range was searched and nothing passed the criteria: whatever the prior
+          // said is not confirmed, so it is dropped (a wrong prior cannot outlive a refresh).
+          d[x] = std::numeric_limits<float>::quiet_NaN();
+          age[x] = kAgeNone;
         }
-        // A pixel that searched the full range and failed keeps its count, so a dropped prior
-        // stays dropped until the pixel is measured again.
       }
     }
   }
   stats_.prior_hits = hits;
   stats_.prior_misses = misses;
   if (have_narrowed) narrowed_.setTo(0);
+  ++frame_count_;
 }
 
 // ------------------------------------------------------------------------------------------------

@@ -6,10 +6,9 @@
 #include <algorithm>
 #include <cmath>
 #include <limits>
-#include <sstream>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/features2d.hpp>
+#include <sstream>
 
 namespace endo_stereo {
 namespace detail {
@@ -192,8 +191,8 @@ void offsetStatistics(std::vector<double> v, double* median, double* p90) {
 // ---------------------------------------------------------------------------------------------
 // Hartley 1999. Work in normalised coordinates (centre at 0, scale 1 / max(w, h)) so that the
 // least-squares fit below weighs rotation and translation entries alike.
-bool homographyRectification(const cv::Matx33d& F, const cv::Size& size, cv::Matx33d* H_left,
-                             cv::Matx33d* H_right, std::string* error) {
+bool homographyRectification(const cv::Matx33d& F, const Matches& inliers, const cv::Size& size,
+                             cv::Matx33d* H_left, cv::Matx33d* H_right, std::string* error) {
   const double cx = (size.width - 1) / 2.0, cy = (size.height - 1) / 2.0;
   const double s = 1.0 / std::max(size.width, size.height);
   const cv::Matx33d N(s, 0, -s * cx, 0, s, -s * cy, 0, 0, 1);
@@ -226,35 +225,52 @@ bool homographyRectification(const cv::Matx33d& F, const cv::Size& size, cv::Mat
   }
   const cv::Matx33d Hr = G * Rz;
 
-  // Left image: a homography compatible with F (F = [e']x M), M = -[e']x F + e' v^T, with v
-  // (and a scale lambda) chosen so that M is as close as possible to lambda * I: rows align
-  // by construction, and the left image is warped like the right one rather than sheared, so
-  // rectified disparities stay close to the raw horizontal disparities.
+  // Left image: any homography compatible with F is H_r (A + e' v^T) with A = -[e']x F, and
+  // since H_r e' is the point at infinity along x, v changes only the x row of the result. Its
+  // y and w rows come from F (that is what aligns the rows). Hartley fits the x row to minimise
+  // disparity; we choose it instead so that the left warp has no shear at the image centre (its
+  // Jacobian there is a rotation and scale), then shift it so that the median rectified
+  // disparity of the inliers equals their median raw horizontal disparity: the left image is
+  // warped like a camera rotation rather than sheared, and disparities keep their raw meaning
+  // (positive, zero at infinity for a parallel rig).
   const cv::Matx33d A = -(cross(er) * Fn);
-  cv::Mat lsq_a(9, 4, CV_64F, cv::Scalar(0)), lsq_b(9, 1, CV_64F), sol;
-  for (int i = 0; i < 3; ++i) {
-    for (int j = 0; j < 3; ++j) {
-      const int k = 3 * i + j;
-      lsq_a.at<double>(k, j) = er[i];
-      lsq_a.at<double>(k, 3) = i == j ? -1.0 : 0.0;
-      lsq_b.at<double>(k) = -A(i, j);
+  cv::Matx33d Hl = Hr * A;
+  {
+    const double d = Hl(1, 0), e = Hl(1, 1), f = Hl(1, 2);
+    const double g = Hl(2, 0), h = Hl(2, 1), i = Hl(2, 2);
+    if (!(std::abs(i) > 1e-12)) {
+      if (error) *error = "degenerate matching transform (image centre at infinity)";
+      return false;
+    }
+    const double y0 = f / i;  // rectified y of the image centre (x0 = 0 with c = 0)
+    Hl(0, 0) = e - y0 * h;
+    Hl(0, 1) = -(d - y0 * g);
+    Hl(0, 2) = 0.0;
+    if (!(std::hypot(Hl(0, 0), Hl(0, 1)) > 1e-12)) {
+      if (error) *error = "degenerate matching transform (zero scale)";
+      return false;
+    }
+    std::vector<double> raw_d, rect_d;
+    for (size_t k = 0; k < inliers.size(); ++k) {
+      const cv::Vec3d ql = Hl * (N * cv::Vec3d(inliers.left[k].x, inliers.left[k].y, 1.0));
+      const cv::Vec3d qr = Hr * (N * cv::Vec3d(inliers.right[k].x, inliers.right[k].y, 1.0));
+      if (!(std::abs(ql[2]) > 1e-12) || !(std::abs(qr[2]) > 1e-12)) continue;
+      rect_d.push_back(ql[0] / ql[2] - qr[0] / qr[2]);
+      raw_d.push_back(s * (inliers.left[k].x - inliers.right[k].x));
+    }
+    if (!raw_d.empty()) {
+      double m_raw, m_rect, unused;
+      offsetStatistics(raw_d, &m_raw, &unused);
+      offsetStatistics(rect_d, &m_rect, &unused);
+      // Adding delta * (w row) to the x row shifts every rectified x by exactly delta.
+      const double delta = m_raw - m_rect;
+      for (int c = 0; c < 3; ++c) Hl(0, c) += delta * Hl(2, c);
     }
   }
-  cv::solve(lsq_a, lsq_b, sol, cv::DECOMP_SVD);
-  const double lambda = sol.at<double>(3);
-  if (!(std::abs(lambda) > 1e-9)) {
-    if (error) *error = "degenerate matching transform (lambda = 0)";
-    return false;
-  }
-  cv::Matx33d M = A;
-  for (int i = 0; i < 3; ++i)
-    for (int j = 0; j < 3; ++j) M(i, j) += er[i] * sol.at<double>(j);
-  M *= 1.0 / lambda;
-  const cv::Matx33d Hl = Hr * M;
 
   // Both images must stay on one side of their line at infinity.
-  const cv::Point2d corners[4] = {{0, 0}, {size.width - 1.0, 0},
-                                  {size.width - 1.0, size.height - 1.0}, {0, size.height - 1.0}};
+  const cv::Point2d corners[4] = {
+      {0, 0}, {size.width - 1.0, 0}, {size.width - 1.0, size.height - 1.0}, {0, size.height - 1.0}};
   cv::Point2d mapped[4];
   for (int img = 0; img < 2; ++img) {
     const cv::Matx33d H = (img == 0 ? Hl : Hr) * N;
@@ -345,8 +361,8 @@ bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::
   };
 
   // Left angular range: full circle around an inner epipole, else the wedge of the corners.
-  const cv::Point2d corners[4] = {{0, 0}, {size.width - 1.0, 0},
-                                  {size.width - 1.0, size.height - 1.0}, {0, size.height - 1.0}};
+  const cv::Point2d corners[4] = {
+      {0, 0}, {size.width - 1.0, 0}, {size.width - 1.0, size.height - 1.0}, {0, size.height - 1.0}};
   double t_begin, t_end;
   double r_far_l = 0, r_far_r = 0;
   for (const auto& c : corners) {
@@ -507,7 +523,8 @@ cv::Point2d PolarRectification::toRaw(bool left, double col, double row) const {
   const size_t i1 = std::min(i0 + 1, ang.size() - 1);
   const double t = rr - double(i0);
   const double a = ang[i0] * (1 - t) + ang[i1] * t;
-  const double r = (left ? r_ref_left : r_ref_right) + (left ? sign_left : sign_right) * (col - c_ref);
+  const double r =
+      (left ? r_ref_left : r_ref_right) + (left ? sign_left : sign_right) * (col - c_ref);
   const cv::Point2d e = left ? epipole_left : epipole_right;
   return e + r * cv::Point2d(std::cos(a), std::sin(a));
 }

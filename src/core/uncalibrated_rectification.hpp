@@ -2,10 +2,9 @@
 // rectification.cpp (the state machine) and uncalibrated_rectification.cpp (the algorithms).
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "endo_stereo/core/rectification.hpp"
 
@@ -39,10 +38,11 @@ void epipoles(const cv::Matx33d& F, cv::Vec3d* e_left, cv::Vec3d* e_right);
 double epipoleDistance(const cv::Vec3d& e, const cv::Size& size);
 
 /// Hartley's projective rectification (see rectification.hpp); H map raw px -> rectified px
-/// of an output image of @p size. @return false (with a reason) when an image would cross the
-/// line at infinity (epipole too close: use polar) or the result is degenerate.
-bool homographyRectification(const cv::Matx33d& F, const cv::Size& size, cv::Matx33d* H_left,
-                             cv::Matx33d* H_right, std::string* error);
+/// of an output image of @p size; @p inliers set the horizontal offset (median disparity kept).
+/// @return false (with a reason) when an image would cross the line at infinity (epipole too
+/// close: use polar) or the result is degenerate.
+bool homographyRectification(const cv::Matx33d& F, const Matches& inliers, const cv::Size& size,
+                             cv::Matx33d* H_left, cv::Matx33d* H_right, std::string* error);
 
 /// Pollefeys' polar rectification (see PolarRectification). @p inliers orient the half-lines.
 bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::Size& size,

@@ -277,11 +277,13 @@ Scene surgicalScene(int width, int height, int num_disparities, int frame_index)
   s.gt = f.gt_disparity.clone();
   s.nonocc = f.visibility == endo_stereo::kVisibleBoth;
   s.disc = discontinuityMask(s.gt, s.nonocc);
-  // A fixed-width range (num_disparities) placed around the scene's disparities.
   double lo = 0, hi = 0;
   cv::minMaxLoc(s.gt, &lo, &hi, nullptr, nullptr, s.nonocc);
   const double centre = 0.5 * (lo + hi);
-  s.min_disparity = static_cast<int>(std::floor(centre - num_disparities / 2.0));
+  s.num_disparities = num_disparities;
+  // A fixed-width range around the scene's disparities, starting at 0 when that covers them
+  // (0..63 is the usual full search of a 960x540 endoscope frame).
+  s.min_disparity = std::max(0, static_cast<int>(std::floor(centre - num_disparities / 2.0)));
   if (hi - lo > num_disparities - 8) {
     std::cerr << "note: " << s.name << " disparities span " << hi - lo << " px, more than "
               << num_disparities << " - 8\n";

@@ -616,11 +616,12 @@ int run(int argc, char** argv) {
   endo_stereo::PipelineOutput out;
   int failed = 0;
   bool warned_cloud = false;
-  for (int n = 0; o.count < 0 || n < o.count; ++n) {
+  const int count = sequence ? o.count : 1;  // -1: a sequence runs until its first missing frame
+  for (int n = 0; count < 0 || n < count; ++n) {
     const int index = first + n;
     const std::string left_path = sequence ? formatPattern(o.left, index) : o.left;
     const std::string right_path = sequence ? formatPattern(o.right, index) : o.right;
-    if (sequence && o.count < 0 && !fileExists(left_path)) {
+    if (sequence && count < 0 && !fileExists(left_path)) {
       if (n == 0) {
         std::cerr << "endo_stereo_cli: no frame found: '" << left_path << "' does not exist\n";
         return kExitInput;

@@ -45,6 +45,7 @@ std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::s
       else if (name == "gamma_min") m.gamma_min = std::stod(v);
       else if (name == "delta_min") m.delta_min = std::stod(v);
       else if (name == "epsilon_px") m.epsilon_px = std::stod(v);
+      else if (name == "min_ncc") m.min_ncc = std::stod(v);
       else if (name == "subpixel") m.subpixel = parseBool(v);
       else if (name == "num_threads") m.num_threads = std::stoi(v);
       else if (name == "edge_window_max_px") m.edge_window_max_px = std::stoi(v);

@@ -45,6 +45,8 @@ Options:
   --noise SIGMA       sensor noise, grey levels (default 1.5)
   --params FILE.yaml  pipeline preset (matcher, filter, temporal sections are used)
   --set KEY=VALUE     override one parameter (repeatable), e.g. --set temporal.prior_radius_px=3
+  --refresh K         temporal.refresh_period_frames (until the params loader knows the key)
+  --edge-zone E       temporal.prior_edge_zone_px (likewise)
   --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
                       SGBM's MODE_SGBM runs on one thread whatever this says.
   --no-sgbm           skip the SGBM baseline
@@ -115,7 +117,7 @@ cv::Mat labelled(const cv::Mat& img, const std::string& text) {
 int main(int argc, char** argv) {
   endo_stereo::SurgicalSceneParams sp;
   endo_stereo::PipelineParams pp;
-  int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
+  int frames = 100, warmup = 5, threads = 1, picture_frame = -1, refresh = -1, edge_zone = -1;
   bool run_sgbm = true;
   std::string out_dir;
   std::vector<std::string> overrides;
@@ -148,6 +150,10 @@ int main(int argc, char** argv) {
       params_file = next();
     } else if (a == "--set") {
       overrides.push_back(next());
+    } else if (a == "--edge-zone") {
+      edge_zone = std::atoi(next().c_str());
+    } else if (a == "--refresh") {
+      refresh = std::atoi(next().c_str());
     } else if (a == "--threads") {
       threads = std::atoi(next().c_str());
     } else if (a == "--no-sgbm") {
@@ -193,6 +199,8 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
+  if (refresh >= 0) pp.temporal.refresh_period_frames = refresh;
+  if (edge_zone >= 0) pp.temporal.prior_edge_zone_px = edge_zone;
   pp.matcher.num_threads = threads;
   cv::setNumThreads(threads);
   endo_stereo::TemporalParams with = pp.temporal, without = pp.temporal;
@@ -267,6 +275,33 @@ int main(int argc, char** argv) {
       searched += int64_t(l.total());
       width_sum += ps.mean_narrowed_width_px;
       ++width_frames;
+    }
+    if (std::getenv("ES_BENCH_DEBUG") && i >= warmup) {
+      // Where do the bad pixels lie? near an instrument edge (10 px), in a highlight, elsewhere.
+      cv::Mat edge;
+      cv::Mat dil, ero;
+      cv::dilate(frame.instrument_mask, dil, cv::Mat(), cv::Point(-1, -1), 10);
+      cv::erode(frame.instrument_mask, ero, cv::Mat(), cv::Point(-1, -1), 10);
+      edge = dil & ~ero;
+      cv::Mat spec;
+      cv::dilate(frame.left_specular, spec, cv::Mat(), cv::Point(-1, -1), 3);
+      for (int k = 0; k < 2; ++k) {
+        const cv::Mat& d = k == 0 ? res_with.disparity : res_without.disparity;
+        cv::Mat err;
+        cv::absdiff(d, frame.gt_disparity, err);
+        const cv::Mat bad = (err > 2.0f) & nonocc;  // NaN compares false
+        const int n_bad = cv::countNonZero(bad);
+        const int n_edge = cv::countNonZero(bad & edge);
+        const int n_spec = cv::countNonZero(bad & spec & ~edge);
+        const int n_inst = cv::countNonZero(bad & frame.instrument_mask & ~edge & ~spec);
+        std::fprintf(stderr, "  %s: bad %d: instrument edge %d, highlight %d, instrument %d, other %d\n",
+                     k == 0 ? "with   " : "without", n_bad, n_edge, n_spec, n_inst, n_bad - n_edge - n_spec - n_inst);
+        if (k == 0 && i == picture_frame) {
+          cv::Mat vis = frame.left.clone();
+          vis.setTo(cv::Scalar(0, 255, 0), bad);
+          cv::imwrite("/tmp/bad_with.png", vis);
+        }
+      }
     }
     if (i == picture_frame) {
       picture_left = frame.left.clone();

@@ -1,16 +1,15 @@
 // Calibration loading/saving and validation: camera_info YAML, OpenCV stereo YAML, the dataset
 // formats, and bad calibrations refused with a message naming the field.
+#include <gtest/gtest.h>
+#include <unistd.h>
+
 #include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <limits>
-#include <string>
-
-#include <unistd.h>
-
-#include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <string>
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/rectification.hpp"
@@ -24,7 +23,8 @@ namespace {
 
 std::string tempPath(const std::string& name) {
   const char* tmp = std::getenv("TMPDIR");
-  return std::string(tmp ? tmp : "/tmp") + "/es_calib_io_" + std::to_string(::getpid()) + "_" + name;
+  return std::string(tmp ? tmp : "/tmp") + "/es_calib_io_" + std::to_string(::getpid()) + "_" +
+         name;
 }
 
 bool fileExists(const std::string& p) { return std::ifstream(p).good(); }
@@ -218,7 +218,8 @@ TEST(CalibrationValidation, RefusesBadCalibrationsNamingTheField) {
   static double s_nan;
   s_nan = nan;
   const Case cases[] = {
-      {"zero focal length", [](StereoCalibration& s) { s.left.K(0, 0) = 0; }, "left.K: fx must be > 0"},
+      {"zero focal length", [](StereoCalibration& s) { s.left.K(0, 0) = 0; },
+       "left.K: fx must be > 0"},
       {"zero fy", [](StereoCalibration& s) { s.right.K(1, 1) = 0; }, "right.K: fy must be > 0"},
       {"NaN in K", [](StereoCalibration& s) { s.right.K(0, 2) = s_nan; }, "right.K: contains NaN"},
       {"NaN in D", [](StereoCalibration& s) { s.left.D[1] = s_nan; }, "left.D: contains NaN"},
@@ -229,11 +230,16 @@ TEST(CalibrationValidation, RefusesBadCalibrationsNamingTheField) {
       {"mismatched sizes", [](StereoCalibration& s) { s.right.width = 320; }, "right.width/height"},
       {"unknown model", [](StereoCalibration& s) { s.left.distortion_model = "kannala"; },
        "left.distortion_model"},
-      {"not a rotation", [](StereoCalibration& s) { s.left.R(0, 0) = 2; }, "left.R: not a rotation"},
+      {"not a rotation", [](StereoCalibration& s) { s.left.R(0, 0) = 2; },
+       "left.R: not a rotation"},
       {"rows misaligned", [](StereoCalibration& s) { s.right.P(1, 2) += 3; }, "right.P: cy"},
       {"P for one camera", [](StereoCalibration& s) { s.right.P = cv::Matx34d::zeros(); },
        "given for one camera only"},
-      {"negative size", [](StereoCalibration& s) { s.left.width = -1; s.right.width = -1; },
+      {"negative size",
+       [](StereoCalibration& s) {
+         s.left.width = -1;
+         s.right.width = -1;
+       },
        "left.width/height"},
   };
   for (const Case& c : cases) {
@@ -249,7 +255,8 @@ TEST(CalibrationValidation, RefusesBadCalibrationsNamingTheField) {
   StereoCalibration s = goodPair();
   s.left.P = s.right.P = cv::Matx34d::zeros();
   s.has_extrinsics = true;
-  EXPECT_NE(s.validate().find("T_right_left: baseline must be > 0"), std::string::npos) << s.validate();
+  EXPECT_NE(s.validate().find("T_right_left: baseline must be > 0"), std::string::npos)
+      << s.validate();
   s.T_right_left = cv::Vec3d(-0.005, 0, 0);
   EXPECT_EQ(s.validate(), "");
   s.R_right_left(1, 1) = nan;

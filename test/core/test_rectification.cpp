@@ -1,16 +1,16 @@
 // Calibrated and pass-through rectification: the UCL reference outputs, a synthetic distorted
 // verged rig with exact geometry, the Hamlyn heart phantom, caching, binning and the quality
 // figure.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <cstdio>
-#include <string>
-#include <vector>
-
-#include <gtest/gtest.h>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <string>
+#include <vector>
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/matcher.hpp"
@@ -32,9 +32,7 @@ class RectifyTest : public ::testing::Test {
   void TearDown() override { cv::setNumThreads(-1); }
 };
 
-bool dirExists(const std::string& path) {
-  return !cv::imread(path, cv::IMREAD_UNCHANGED).empty();
-}
+bool dirExists(const std::string& path) { return !cv::imread(path, cv::IMREAD_UNCHANGED).empty(); }
 
 double ncc(const cv::Mat& a, const cv::Mat& b) {
   cv::Mat fa, fb;
@@ -84,7 +82,7 @@ TEST_F(RectifyTest, ReproducesUclReferenceRectification) {
   const RectifiedGeometry& g = rectifier.geometry();
   EXPECT_TRUE(g.metric);
   EXPECT_NEAR(g.baseline_m, 0.00399, 0.0001);  // |T| = 3.989 mm
-  EXPECT_DOUBLE_EQ(g.doffs(), 0.0);             // CALIB_ZERO_DISPARITY
+  EXPECT_DOUBLE_EQ(g.doffs(), 0.0);            // CALIB_ZERO_DISPARITY
 }
 
 // ------------------------------------------------------------------ synthetic distorted verged rig
@@ -154,8 +152,11 @@ TEST_P(CalibratedRigTest, AlignsRowsAndRecoversDepth) {
     calib.right.P = cv::Matx34d(p2);
     StereoCalibration from_yaml;
     std::string err;
-    ASSERT_TRUE(parseCameraInfoYaml(cameraInfoYamlString(calib.left, "left"), from_yaml.left, &err)) << err;
-    ASSERT_TRUE(parseCameraInfoYaml(cameraInfoYamlString(calib.right, "right"), from_yaml.right, &err)) << err;
+    ASSERT_TRUE(parseCameraInfoYaml(cameraInfoYamlString(calib.left, "left"), from_yaml.left, &err))
+        << err;
+    ASSERT_TRUE(
+        parseCameraInfoYaml(cameraInfoYamlString(calib.right, "right"), from_yaml.right, &err))
+        << err;
     calib = from_yaml;
   }
   StereoRectifier rectifier(rp);
@@ -207,9 +208,10 @@ TEST_P(CalibratedRigTest, AlignsRowsAndRecoversDepth) {
     const double z_twice = g.f_px * g.baseline_m / ((ca.x - cb.x) - 2 * g.doffs());
     max_dz_twice = std::max(max_dz_twice, std::abs(z_twice - Xr[2]) / Xr[2]);
   }
-  std::printf("[ measure  ] %s: %d dots, max |dy| %.4f px (exact %.2g), max depth error %.4f%%"
-              " (doffs %.2f px; applied twice: %.2f%%)\n",
-              rc.name, n_measured, max_dy, max_dy_exact, 100 * max_dz, g.doffs(), 100 * max_dz_twice);
+  std::printf(
+      "[ measure  ] %s: %d dots, max |dy| %.4f px (exact %.2g), max depth error %.4f%%"
+      " (doffs %.2f px; applied twice: %.2f%%)\n",
+      rc.name, n_measured, max_dy, max_dy_exact, 100 * max_dz, g.doffs(), 100 * max_dz_twice);
   ASSERT_GE(n_measured, 30);
   // Exact mapping: numerical noise only.
   EXPECT_LT(max_dy_exact, 1e-3);
@@ -223,12 +225,13 @@ TEST_P(CalibratedRigTest, AlignsRowsAndRecoversDepth) {
   }
 }
 
-INSTANTIATE_TEST_SUITE_P(
-    Rigs, CalibratedRigTest,
-    ::testing::Values(RigCase{"extrinsics_zero_disparity", true, false},
-                      RigCase{"extrinsics_verged", false, false},
-                      RigCase{"camera_info_P_verged", false, true}),
-    [](const ::testing::TestParamInfo<RigCase>& info) { return std::string(info.param.name); });
+INSTANTIATE_TEST_SUITE_P(Rigs, CalibratedRigTest,
+                         ::testing::Values(RigCase{"extrinsics_zero_disparity", true, false},
+                                           RigCase{"extrinsics_verged", false, false},
+                                           RigCase{"camera_info_P_verged", false, true}),
+                         [](const ::testing::TestParamInfo<RigCase>& info) {
+                           return std::string(info.param.name);
+                         });
 
 // ------------------------------------------------------------------ quality figure and caching
 
@@ -249,10 +252,10 @@ TEST_F(RectifyTest, QualityFlagsAWrongCalibration) {
   ASSERT_TRUE(good.rectify(raw_l, raw_r, cv::Mat(), lg, rg, lc, &err)) << err;
   ASSERT_TRUE(bad.rectify(raw_l, raw_r, cv::Mat(), lg, rg, lc, &err)) << err;
   const RectificationQuality qg = good.quality(), qb = bad.quality();
-  std::printf("[ measure  ] quality: correct calibration median %.3f p90 %.3f px (%d matches); "
-              "wrong median %.3f p90 %.3f px\n",
-              qg.median_offset_px, qg.p90_offset_px, qg.num_matches, qb.median_offset_px,
-              qb.p90_offset_px);
+  std::printf(
+      "[ measure  ] quality: correct calibration median %.3f p90 %.3f px (%d matches); "
+      "wrong median %.3f p90 %.3f px\n",
+      qg.median_offset_px, qg.p90_offset_px, qg.num_matches, qb.median_offset_px, qb.p90_offset_px);
   ASSERT_TRUE(qg.valid);
   ASSERT_TRUE(qb.valid);
   EXPECT_EQ(qg.frame_index, 0);
@@ -435,11 +438,12 @@ TEST_F(RectifyTest, HamlynPhantomRectifiesToExpectedDisparities) {
   ASSERT_GT(valid, 0);
   std::nth_element(values.begin(), values.begin() + long(values.size() / 2), values.end());
   const double share = double(in_range) / valid;
-  std::printf("[ measure  ] Hamlyn: vertical offset median %.3f p90 %.3f px (%d matches); "
-              "disparity median %.2f px, %.1f%% of %d valid mask pixels in [30, 45] "
-              "(density %.1f%%)\n",
-              q.median_offset_px, q.p90_offset_px, q.num_matches, values[values.size() / 2],
-              100 * share, valid, 100.0 * valid / in_mask);
+  std::printf(
+      "[ measure  ] Hamlyn: vertical offset median %.3f p90 %.3f px (%d matches); "
+      "disparity median %.2f px, %.1f%% of %d valid mask pixels in [30, 45] "
+      "(density %.1f%%)\n",
+      q.median_offset_px, q.p90_offset_px, q.num_matches, values[values.size() / 2], 100 * share,
+      valid, 100.0 * valid / in_mask);
   // Issue 3: vertical offset under 1 px and disparities in the mask in 30-45 px. "Lie in" is
   // checked as 95% of the accepted pixels (the matcher keeps a few wrong matches on specular
   // highlights) with the median inside the range.

@@ -2,6 +2,7 @@
 // sequences with known answers and on the synthetic surgical sequence.
 #include <cmath>
 #include <limits>
+#include <vector>
 
 #include <gtest/gtest.h>
 #include <opencv2/core.hpp>
@@ -15,6 +16,14 @@ namespace {
 const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 cv::Mat constantDisparity(cv::Size size, float d) { return cv::Mat(size, CV_32FC1, cv::Scalar(d)); }
+
+// Priors alone: no refresh stripes and no edge zones, so every expected range is easy to state.
+TemporalParams plainParams() {
+  TemporalParams p;
+  p.refresh_period_frames = 0;
+  p.prior_edge_zone_px = 0;
+  return p;
+}
 
 TEST(TemporalParams, ValidateNamesTheField) {
   EXPECT_EQ(TemporalParams().validate(), "");
@@ -66,7 +75,7 @@ TEST(TemporalPrior, FirstFrameSearchesTheFullRange) {
 }
 
 TEST(TemporalPrior, NarrowsAroundPreviousDisparity) {
-  TemporalParams p;
+  TemporalParams p = plainParams();
   p.prior_radius_px = 4;
   p.prior_neighbourhood_px = 2;
   TemporalPrior prior(p);
@@ -104,7 +113,7 @@ TEST(TemporalPrior, NarrowsAroundPreviousDisparity) {
 }
 
 TEST(TemporalPrior, FallsBackToFullRangeWhenPriorKeepsFailing) {
-  TemporalParams p;
+  TemporalParams p = plainParams();
   p.max_prior_failures = 2;
   p.max_prior_age_frames = 5;
   p.prior_neighbourhood_px = 0;
@@ -142,7 +151,7 @@ TEST(TemporalPrior, FallsBackToFullRangeWhenPriorKeepsFailing) {
 }
 
 TEST(TemporalPrior, ForgetsPriorsOlderThanMaxAge) {
-  TemporalParams p;
+  TemporalParams p = plainParams();
   p.max_prior_age_frames = 2;
   p.max_prior_failures = 100;
   TemporalPrior prior(p);
@@ -158,6 +167,82 @@ TEST(TemporalPrior, ForgetsPriorsOlderThanMaxAge) {
   EXPECT_EQ(prior.stats().full_range_pixels, 256);
 }
 
+TEST(TemporalPrior, RefreshStripesTakeTurnsAtTheFullRange) {
+  TemporalParams p = plainParams();
+  p.refresh_period_frames = 4;
+  p.prior_neighbourhood_px = 2;
+  TemporalPrior prior(p);
+  const cv::Size size(16, 4 * kRefreshStripeRows);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  prior.update(constantDisparity(size, 30.0f));
+  std::vector<int> refreshed(4, 0);
+  for (int f = 1; f <= 4; ++f) {
+    ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+    EXPECT_EQ(prior.stats().refresh_pixels, 16 * kRefreshStripeRows);
+    for (int s = 0; s < 4; ++s) {
+      const int y = s * kRefreshStripeRows + 3;
+      const bool full = range.lo.at<int16_t>(y, 5) == 0 && range.hi.at<int16_t>(y, 5) == 63;
+      refreshed[s] += full;
+      if (!full) EXPECT_EQ(range.lo.at<int16_t>(y, 5), 26);
+    }
+    prior.update(constantDisparity(size, 30.0f));
+  }
+  for (int s = 0; s < 4; ++s) EXPECT_EQ(refreshed[s], 1) << "stripe " << s;  // each once in 4 frames
+  // A refreshed pixel whose full search finds nothing loses its prior: the stripe's rows further
+  // than the neighbourhood from the other stripes search the full range next frame.
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  int stripe = -1;
+  for (int s = 0; s < 4; ++s)
+    if (range.lo.at<int16_t>(s * kRefreshStripeRows + 3, 5) == 0) stripe = s;
+  ASSERT_GE(stripe, 0);
+  cv::Mat d = constantDisparity(size, 30.0f);
+  d.rowRange(stripe * kRefreshStripeRows, (stripe + 1) * kRefreshStripeRows).setTo(kNaN);
+  prior.update(d);
+  p.refresh_period_frames = 0;
+  prior.setParams(p);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(range.lo.at<int16_t>(stripe * kRefreshStripeRows + 3, 5), 0);
+  EXPECT_EQ(range.lo.at<int16_t>(stripe * kRefreshStripeRows + 1, 5), 26);  // neighbours' priors
+  // A narrowed search that fails keeps its prior (up to max_prior_failures).
+  d = constantDisparity(size, 30.0f);
+  d.at<float>(3, 5) = kNaN;
+  prior.update(d);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(prior.lastDisparity().at<float>(3, 5), 30.0f);
+  EXPECT_EQ(prior.priorAge().at<uint16_t>(3, 5), 1);
+}
+
+TEST(TemporalPrior, EdgeZoneSpansBothSidesOfADepthEdge) {
+  TemporalParams p = plainParams();
+  p.prior_neighbourhood_px = 2;
+  p.prior_edge_zone_px = 6;
+  TemporalPrior prior(p);
+  const cv::Size size(40, 20);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  cv::Mat d = constantDisparity(size, 20.0f);
+  d.colRange(20, 40).setTo(40.0f);  // an instrument edge at x = 20
+  prior.update(d);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  // Within 6 px of the edge: both sides, [20 - 4, 40 + 4].
+  EXPECT_EQ(range.lo.at<int16_t>(10, 15), 16);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 15), 44);
+  EXPECT_EQ(range.lo.at<int16_t>(10, 24), 16);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 24), 44);
+  // Further away: the own side only.
+  EXPECT_EQ(range.lo.at<int16_t>(10, 5), 16);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 5), 24);
+  EXPECT_EQ(range.lo.at<int16_t>(10, 35), 36);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 35), 44);
+  EXPECT_EQ(prior.stats().edge_zone_pixels, 12 * 20);  // columns 14 .. 25
+  // A slanted surface is no edge: 0.2 px per column spans 2.4 px over the zone.
+  for (int x = 0; x < 40; ++x) d.col(x).setTo(20.0f + 0.2f * x);
+  prior.update(d);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(prior.stats().edge_zone_pixels, 0);
+}
+
 TEST(TemporalPrior, ResetsOnSizeOrRangeChange) {
   TemporalPrior prior;
   SearchRange range;
@@ -170,7 +255,7 @@ TEST(TemporalPrior, ResetsOnSizeOrRangeChange) {
 }
 
 TEST(TemporalTracker, ResetsWhenTimeGoesBackOrAfterLongGap) {
-  TemporalParams p;
+  TemporalParams p = plainParams();
   p.max_gap_s = 0.5;
   TemporalTracker tracker(p);
   const cv::Size size(16, 16);
@@ -338,7 +423,9 @@ TEST(TemporalPrior, RangesShrinkAndHoldTheNextFrameOnAMovingSequence) {
   const SurgicalScene scene(sp);
   int dmin = 0, dmax = 0;
   scene.suggestedDisparityRange(&dmin, &dmax);
-  TemporalPrior prior;
+  TemporalParams tp;
+  tp.refresh_period_frames = 0;  // so that every pixel with a prior is narrowed
+  TemporalPrior prior(tp);
   SearchRange range;
   SurgicalFrame frame;
   auto measured = [&](const SurgicalFrame& f) {

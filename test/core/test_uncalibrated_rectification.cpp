@@ -1,13 +1,13 @@
 // Uncalibrated rectification (homography and polar) on synthetic rigs with exact geometry.
+#include <gtest/gtest.h>
+
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <map>
+#include <opencv2/core/utility.hpp>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <opencv2/core/utility.hpp>
 
 #include "endo_stereo/core/point_cloud.hpp"
 #include "endo_stereo/core/rectification.hpp"
@@ -60,6 +60,7 @@ const std::vector<Frame>& frames(const std::string& rig_name, int n) {
 
 struct Residual {
   double median = 0, p90 = 0, depth_error = 0;
+  double d_min = 1e9, d_max = -1e9;  // rectified disparity range of the points, px
   int n = 0;
 };
 
@@ -69,6 +70,7 @@ struct Residual {
 Residual groundTruthResidual(const StereoRectifier& r, const SyntheticRig& rig,
                              const TexturedSurface& surf) {
   std::vector<double> dy, dz;
+  double d_min = 1e9, d_max = -1e9;
   const cv::Matx33d Ki = rig.left.K.inv();
   for (int v = 10; v < kSize.height - 10; v += 12) {
     for (int u = 10; u < kSize.width - 10; u += 12) {
@@ -78,14 +80,19 @@ Residual groundTruthResidual(const StereoRectifier& r, const SyntheticRig& rig,
       if (!surf.intersect(cv::Vec3d(0, 0, 0), ray, &X)) continue;
       if (!projectPoint(rig.right, X, &pr)) continue;
       if (pr.x < 0 || pr.y < 0 || pr.x > kSize.width - 1 || pr.y > kSize.height - 1) continue;
-      if (!r.rawToRectified(true, cv::Point2d(u, v), &a) || !r.rawToRectified(false, pr, &b)) continue;
+      if (!r.rawToRectified(true, cv::Point2d(u, v), &a) || !r.rawToRectified(false, pr, &b))
+        continue;
       dy.push_back(std::abs(a.y - b.y));
+      d_min = std::min(d_min, a.x - b.x);
+      d_max = std::max(d_max, a.x - b.x);
       const RectifiedGeometry& g = r.geometry();
       if (!g.polar) dz.push_back(std::abs(g.depthFromDisparity(a.x - b.x) - X.z) / X.z);
     }
   }
   Residual res;
   res.n = int(dy.size());
+  res.d_min = d_min;
+  res.d_max = d_max;
   if (dy.empty()) return res;
   std::sort(dy.begin(), dy.end());
   res.median = dy[dy.size() / 2];
@@ -127,10 +134,11 @@ TEST_P(UncalibratedRigTest, AlignsRowsWithoutCalibration) {
   EXPECT_EQ(rect.activeMethod(), uc.expected);
   const RectificationQuality q = rect.quality();
   const Residual gt = groundTruthResidual(rect, rig, fr[1].surface);
-  std::printf("[ measure  ] %s/%s -> %s: ground truth |dy| median %.3f p90 %.3f px (%d points); "
-              "feature residual median %.3f p90 %.3f px (%d); rectified %dx%d\n",
-              uc.rig, toString(uc.method).c_str(), rect.activeMethod().c_str(), gt.median, gt.p90,
-              gt.n, q.median_offset_px, q.p90_offset_px, q.num_matches, lg.cols, lg.rows);
+  std::printf(
+      "[ measure  ] %s/%s -> %s: ground truth |dy| median %.3f p90 %.3f px (%d points); "
+      "feature residual median %.3f p90 %.3f px (%d); rectified %dx%d, disparities %.1f..%.1f px\n",
+      uc.rig, toString(uc.method).c_str(), rect.activeMethod().c_str(), gt.median, gt.p90, gt.n,
+      q.median_offset_px, q.p90_offset_px, q.num_matches, lg.cols, lg.rows, gt.d_min, gt.d_max);
   ASSERT_GT(gt.n, 300);
   // Issue 3: median vertical offset after uncalibrated rectification under 0.5 px.
   EXPECT_LT(gt.median, 0.5);
@@ -245,7 +253,8 @@ TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {
   const std::vector<Frame>& b = frames("rotated", 2);
   cv::Mat lg, rg, lc;
   std::string err;
-  for (int i = 0; i < 2; ++i) ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  for (int i = 0; i < 2; ++i)
+    ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
   const uint64_t gen_a = rect.generation();
   EXPECT_LT(rect.quality().median_offset_px, 0.5);
   // The rig changes (the right camera rolls by 3 degrees): the fixed estimate is now wrong.
@@ -259,8 +268,9 @@ TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {
   }
   EXPECT_GT(rect.generation(), gen_a);
   const Residual gt = groundTruthResidual(rect, namedRig("rotated"), b[1].surface);
-  std::printf("[ measure  ] after drift: ground truth |dy| median %.3f px, feature median %.3f px\n",
-              gt.median, rect.quality().median_offset_px);
+  std::printf(
+      "[ measure  ] after drift: ground truth |dy| median %.3f px, feature median %.3f px\n",
+      gt.median, rect.quality().median_offset_px);
   EXPECT_LT(gt.median, 0.5);
   EXPECT_FALSE(rect.quality().warning);
 }
@@ -275,11 +285,13 @@ TEST_F(UncalibratedTest, FocalAndBaselineMakeDepthMetric) {
   StereoRectifier rect(rp);
   cv::Mat lg, rg, lc;
   std::string err;
-  for (int i = 0; i < 2; ++i) ASSERT_TRUE(rect.rectify(fr[i].left, fr[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  for (int i = 0; i < 2; ++i)
+    ASSERT_TRUE(rect.rectify(fr[i].left, fr[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
   EXPECT_TRUE(rect.geometry().metric);
   const Residual gt = groundTruthResidual(rect, namedRig("parallel"), fr[1].surface);
-  std::printf("[ measure  ] uncalibrated parallel rig with focal/baseline: median depth error %.2f%%\n",
-              100 * gt.depth_error);
+  std::printf(
+      "[ measure  ] uncalibrated parallel rig with focal/baseline: median depth error %.2f%%\n",
+      100 * gt.depth_error);
   // A parallel rig has zero disparity at infinity, the assumption metric uncalibrated depth makes;
   // the residual comes from the projective freedom left in the homographies (2% is generous).
   EXPECT_LT(gt.depth_error, 0.02);

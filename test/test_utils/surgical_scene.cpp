@@ -451,12 +451,13 @@ struct SurgicalScene::Impl {
       if (ang < 0) ang += 1.0;
       float m = 0.0f;
       sampleBilinear<1>(metal, ang * (metal.cols - 1), std::min(from_tip / metal_axial_cell, double(metal.rows - 1)), &m);
-      double g = 0.5 * (1.0 + 0.35 * p.instrument_texture * m);
+      // Stainless steel under a coaxial light: bright but mostly below saturation.
+      double g = 0.33 * (1.0 + 0.35 * p.instrument_texture * m);
       // Dark rings a few millimetres behind the tip, as printed on real instruments.
       if (p.instrument_texture > 0 && ((from_tip > 0.009 && from_tip < 0.0105) || (from_tip > 0.014 && from_tip < 0.015)))
         g *= 0.25;
       albedo_rgb = cv::Vec3d(g, g * 1.01, g * 1.03);
-      ks = 1.1;
+      ks = 0.8;
       shininess = 35.0;
     }
     cv::Vec3d l = st.light - P;

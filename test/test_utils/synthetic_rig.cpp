@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
 
@@ -142,8 +141,9 @@ cv::Mat renderSurface(const RigCamera& cam, const TexturedSurface& surf, double 
     grid.reserve(size_t(gw) * gh);
     for (int v = 0; v < gh; ++v)
       for (int u = 0; u < gw; ++u) grid.emplace_back(u - 1.0, v - 1.0);
-    cv::undistortPoints(grid, grid_n, cam.K, cv::Mat(cam.D), cv::noArray(), cv::noArray(),
-                        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-14));
+    cv::undistortPoints(
+        grid, grid_n, cam.K, cv::Mat(cam.D), cv::noArray(), cv::noArray(),
+        cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 50, 1e-14));
     for (size_t i = 0; i < px.size(); ++i) {
       const double gx = px[i].x + 1.0, gy = px[i].y + 1.0;
       const int x0 = std::min(std::max(int(std::floor(gx)), 0), gw - 2);

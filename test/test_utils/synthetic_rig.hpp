@@ -19,9 +19,8 @@
 #pragma once
 
 #include <cstdint>
-#include <vector>
-
 #include <opencv2/core.hpp>
+#include <vector>
 
 #include "endo_stereo/core/stereo_geometry.hpp"
 

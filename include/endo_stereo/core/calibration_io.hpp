@@ -22,9 +22,8 @@
  */
 #pragma once
 
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 #include "endo_stereo/core/stereo_geometry.hpp"
 

@@ -47,8 +47,14 @@ struct MatcherParams {
   double gamma_min = 0.5;
   /// Least NCC gap between the best and the second-highest peak, [0, 2].
   double delta_min = 0.1;
-  /// Left-right consistency tolerance |d_LR + d_RL| < epsilon, px, > 0.
-  double epsilon_px = 5.0;
+  /// Left-right consistency tolerance |d_LR + d_RL| < epsilon, px, > 0. Compared on the integer
+  /// peaks, so 1 means "exactly the same disparity" (paper: 5).
+  double epsilon_px = 1.0;
+  /// Least NCC of the best peak, [-1, 1] (ours; -1 = off). A weak best peak means the window
+  /// found no real match, which matters most with a narrowed per-pixel range: there the true peak
+  /// may lie outside the range, and a noise peak inside it has no competitor. Counted as a
+  /// discrimination failure (kCodeRejectPeakGap).
+  double min_ncc = 0.5;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
   /// Worker threads; 0 = OpenCV's default. The output does not depend on this value.
@@ -57,9 +63,9 @@ struct MatcherParams {
   /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity
   /// (0 = no limit). Units px.
   int edge_window_max_px = 0;
-  /// Reject a pixel whose window straddles a disparity discontinuity larger than this, px
-  /// (0 = off).
-  double edge_disparity_jump_px = 0.0;
+  /// Reject a pixel whose accepting window straddles a disparity discontinuity: the accepted
+  /// disparities inside its window reach farther than this from its own, px (0 = off).
+  double edge_disparity_jump_px = 1.0;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;

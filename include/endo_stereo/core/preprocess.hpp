@@ -30,9 +30,8 @@
 
 #include <cstddef>
 #include <cstdint>
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 #include "endo_stereo/core/stereo_geometry.hpp"
 
@@ -96,8 +95,8 @@ bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, 
  * @param bgr      out: CV_8UC3 BGR (gray replicated for mono input). Pass nullptr to skip.
  * @return false with "unsupported encoding 'X'" or a message naming the type/size mismatch.
  */
-bool convertImage(const cv::Mat& raw, const std::string& encoding, int mono16_bits,
-                  cv::Mat& gray, cv::Mat* bgr, std::string* error);
+bool convertImage(const cv::Mat& raw, const std::string& encoding, int mono16_bits, cv::Mat& gray,
+                  cv::Mat* bgr, std::string* error);
 
 /**
  * The whole pre-processing of one raw image: interlace handling, conversion, downsampling.
@@ -105,8 +104,9 @@ bool convertImage(const cv::Mat& raw, const std::string& encoding, int mono16_bi
  * @param bgr  out: CV_8UC3 of the same size (nullptr to skip the colour path).
  * @return false with a message (unsupported encoding, size/type mismatch, image too small).
  */
-bool preprocessImage(const cv::Mat& raw, const std::string& encoding, const PreprocessParams& params,
-                     cv::Mat& gray, cv::Mat* bgr, std::string* error);
+bool preprocessImage(const cv::Mat& raw, const std::string& encoding,
+                     const PreprocessParams& params, cv::Mat& gray, cv::Mat* bgr,
+                     std::string* error);
 
 /// Size of the image preprocessImage() produces from a raw image of @p raw_size.
 cv::Size preprocessedSize(const cv::Size& raw_size, const PreprocessParams& params);

@@ -9,9 +9,11 @@
  * 2. Uncalibrated, as in the paper: SIFT features (Lowe 2004) with the ratio test, the
  *    fundamental matrix by RANSAC, its epipoles, then either
  *    - homography rectification (Hartley, "Theory and practice of projective rectification",
- *      IJCV 1999): the right image's epipole is sent to infinity along x, the left homography is
- *      the matching transform minimising horizontal disparity change; both are then scaled and
- *      shifted by a common transform that keeps the image in frame. Used when both epipoles lie
+ *      IJCV 1999): the right image's epipole is sent to infinity along x; the left homography
+ *      is the F-compatible one whose warp has no shear at the image centre (Hartley instead
+ *      minimises disparity), shifted so that the inliers' median disparity equals their median
+ *      raw horizontal disparity; both then get a common scale and shift that keeps the left
+ *      image's area and centre. Used when both epipoles lie
  *      far outside the images (the usual stereo endoscope).
  *    - polar rectification (Pollefeys, Koch and Van Gool, "A simple and efficient rectification
  *      method for general motion", ICCV 1999): rows are corresponding epipolar half-lines sampled
@@ -47,10 +49,9 @@
 
 #include <cstdint>
 #include <memory>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "endo_stereo/core/stereo_geometry.hpp"
 
@@ -134,17 +135,17 @@ struct RectifyParams {
 
 /// The latest measured rectification residual.
 struct RectificationQuality {
-  bool valid = false;            ///< a measurement exists (false: not yet, or too few matches)
-  double median_offset_px = 0;   ///< median |y_left - y_right| of inlier matches, rectified px
-  double p90_offset_px = 0;      ///< 90th percentile of the same
-  int num_matches = 0;           ///< inlier matches the figures are computed from
-  int64_t frame_index = -1;      ///< rectify() call (0-based) it was measured on
-  bool warning = false;          ///< median_offset_px > RectifyParams::quality_warn_px
+  bool valid = false;           ///< a measurement exists (false: not yet, or too few matches)
+  double median_offset_px = 0;  ///< median |y_left - y_right| of inlier matches, rectified px
+  double p90_offset_px = 0;     ///< 90th percentile of the same
+  int num_matches = 0;          ///< inlier matches the figures are computed from
+  int64_t frame_index = -1;     ///< rectify() call (0-based) it was measured on
+  bool warning = false;         ///< median_offset_px > RectifyParams::quality_warn_px
   /// Uncalibrated: the rectification was estimated (false: "could not be estimated"). True in
   /// the other modes.
   bool estimated = false;
-  std::string method;            ///< "calibrated", "homography", "polar", "pass_through"
-  std::string message;           ///< human-readable state or reason (empty when all is well)
+  std::string method;   ///< "calibrated", "homography", "polar", "pass_through"
+  std::string message;  ///< human-readable state or reason (empty when all is well)
 };
 
 /**
@@ -165,14 +166,14 @@ struct RectificationQuality {
  * approximate the raw horizontal disparities.
  */
 struct PolarRectification {
-  cv::Point2d epipole_left;      ///< raw px (finite; clamped to 1e9 px from the image centre)
+  cv::Point2d epipole_left;  ///< raw px (finite; clamped to 1e9 px from the image centre)
   cv::Point2d epipole_right;
-  std::vector<double> theta;     ///< per row, left half-line angle, rad, monotonic
-  std::vector<double> phi;       ///< per row, right half-line angle, rad, monotonic
+  std::vector<double> theta;               ///< per row, left half-line angle, rad, monotonic
+  std::vector<double> phi;                 ///< per row, right half-line angle, rad, monotonic
   double r_ref_left = 0, r_ref_right = 0;  ///< distance at column c_ref, px
   double sign_left = 1, sign_right = 1;    ///< +1: column grows with r
-  double c_ref = 0;              ///< reference column (same for both images)
-  int width = 0;                 ///< rectified width, px
+  double c_ref = 0;                        ///< reference column (same for both images)
+  int width = 0;                           ///< rectified width, px
   /// Raw point of rectified pixel (col, row) in the left (left = true) or right image.
   cv::Point2d toRaw(bool left, double col, double row) const;
   /// Rectified (col, row) of a raw point; false when it lies outside the rectified region.

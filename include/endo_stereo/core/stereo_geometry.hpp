@@ -7,30 +7,30 @@
  */
 #pragma once
 
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 namespace endo_stereo {
 
 /// One camera, in the sensor_msgs/CameraInfo model. Units: px for K and P, metres for P's Tx
 /// (P(0,3) = -fx' * baseline for the right camera).
 struct CameraCalibration {
-  int width = 0;                   ///< image width, px (full resolution, before binning)
-  int height = 0;                  ///< image height, px
+  int width = 0;   ///< image width, px (full resolution, before binning)
+  int height = 0;  ///< image height, px
   /// "plumb_bob" (4 or 5 coefficients k1 k2 p1 p2 [k3]), "rational_polynomial" (8), "equidistant"
   /// (4, fisheye k1..k4), or "" with D empty or all zero (no distortion). Up to 14 OpenCV
   /// coefficients are accepted under "plumb_bob"/"rational_polynomial" as OpenCV orders them.
   std::string distortion_model;
-  std::vector<double> D;           ///< distortion coefficients in the OpenCV order
+  std::vector<double> D;                 ///< distortion coefficients in the OpenCV order
   cv::Matx33d K = cv::Matx33d::zeros();  ///< intrinsics of the raw image
   cv::Matx33d R = cv::Matx33d::eye();    ///< rectification rotation
-  cv::Matx34d P = cv::Matx34d::zeros();  ///< projection of the rectified image; all-zero = not given
-  int binning_x = 1;               ///< 0 or 1 = none; images are (roi or full) size / binning
+  cv::Matx34d P =
+      cv::Matx34d::zeros();  ///< projection of the rectified image; all-zero = not given
+  int binning_x = 1;         ///< 0 or 1 = none; images are (roi or full) size / binning
   int binning_y = 1;
-  cv::Rect roi;                    ///< in full-resolution px; empty = full image
-  std::string frame_id;            ///< optical frame of this camera
+  cv::Rect roi;          ///< in full-resolution px; empty = full image
+  std::string frame_id;  ///< optical frame of this camera
 
   /// @return empty when usable, else a message naming the field (e.g. "left.K: fx must be > 0").
   /// Sizes: both 0 (unknown: taken from the first images) or both > 0.
@@ -72,11 +72,11 @@ struct StereoCalibration {
 /// A polar-rectified pair (polar == true) has no such geometry: its rows are epipolar lines and its
 /// columns distances from the epipole, so disparity there does not map to depth by this formula.
 struct RectifiedGeometry {
-  int width = 0;            ///< rectified image width, px
-  int height = 0;           ///< rectified image height, px
-  double f_px = 0.0;        ///< rectified focal length (horizontal, fx), px
-  double cx_left = 0.0;     ///< principal point of the rectified left image, px
-  double cx_right = 0.0;    ///< principal point of the rectified right image, px
+  int width = 0;          ///< rectified image width, px
+  int height = 0;         ///< rectified image height, px
+  double f_px = 0.0;      ///< rectified focal length (horizontal, fx), px
+  double cx_left = 0.0;   ///< principal point of the rectified left image, px
+  double cx_right = 0.0;  ///< principal point of the rectified right image, px
   double cy = 0.0;
   double baseline_m = 0.0;  ///< > 0; meaningful only when metric
   bool metric = false;      ///< false: uncalibrated without focal/baseline: disparity only
@@ -84,7 +84,7 @@ struct RectifiedGeometry {
   /// Vertical rectified focal length (fy), px; 0 = same as f_px. Differs from f_px only for
   /// non-square pixels (e.g. a single field of interlaced video rectified to its own size).
   double fy_px = 0.0;
-  bool polar = false;       ///< polar rectification: no depth from disparity (see above)
+  bool polar = false;  ///< polar rectification: no depth from disparity (see above)
   /// Rotation from the raw left optical frame to the left rectified optical frame (calibrated
   /// modes; identity otherwise): X_rect = R_rect_raw_left * X_raw.
   cv::Matx33d R_rect_raw_left = cv::Matx33d::eye();

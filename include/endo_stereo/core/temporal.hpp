@@ -52,12 +52,22 @@ struct TemporalParams {
   /// (a (2k+1)^2 neighbourhood), so small image motion and newly uncovered neighbours of valid
   /// pixels are covered. In [0, 16]; 0 = the pixel's own prior only.
   int prior_neighbourhood_px = 2;
+  /// Depth edges move (an instrument sweeping over tissue): a pixel within this many pixels of a
+  /// prior discontinuity (priors in that neighbourhood spanning more than 2 * prior_radius_px)
+  /// searches the span of both sides, [min - r, max + r] over the neighbourhood, so tissue that an
+  /// instrument uncovers is searched at the tissue's disparity too. In [0, 64]; 0 = off.
+  int prior_edge_zone_px = 10;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
   /// In [1, 1000].
   int max_prior_age_frames = 3;
   /// After this many consecutive frames in which a pixel searched a narrowed range and got no
   /// valid disparity, it searches the full range until it gets one again. In [1, 1000].
   int max_prior_failures = 2;
+  /// Every pixel searches the full range at least once in this many frames: each frame, one in
+  /// every refresh_period_frames stripes of kRefreshStripeRows rows does (in turn), so a wrong
+  /// prior cannot sustain itself. A full-range search that finds nothing drops the pixel's prior.
+  /// In [0, 1000]; 0 = never refresh.
+  int refresh_period_frames = 4;
   /// Forget the temporal state when the stamp moves forward by more than this, s. > 0.
   double max_gap_s = 0.5;
   /// Fused output: keep a pixel's most recent valid disparity for at most this many frames
@@ -71,6 +81,10 @@ struct TemporalParams {
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;
 };
+
+/// Height of the row stripes that take turns at a full-range search (TemporalParams::
+/// refresh_period_frames).
+constexpr int kRefreshStripeRows = 8;
 
 /// What identifies a continuous stream for the temporal state.
 struct TemporalFrameInfo {
@@ -107,6 +121,8 @@ struct TemporalPriorStats {
   int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
   int64_t full_range_pixels = 0;  ///< pixels searching the full range (no prior, or fallback)
   int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
+  int64_t refresh_pixels = 0;     ///< of those: in this frame's refresh stripes
+  int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
   double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
@@ -119,8 +135,9 @@ struct TemporalPriorStats {
  * consecutive failed narrowed searches. buildRange() gives pixel p the range
  * [floor(min_N(p) - r), ceil(max_N(p) + r)], where min_N / max_N are the extreme priors within
  * prior_neighbourhood_px of p (priors no older than max_prior_age_frames, of pixels that have not
- * failed max_prior_failures times in a row), clamped to the full range; pixels with no such prior
- * search the full range.
+ * failed max_prior_failures times in a row), clamped to the full range. Near a prior depth edge
+ * (within prior_edge_zone_px) the span of both sides is searched instead. Pixels with no such
+ * prior search the full range, and so do the rows of this frame's refresh stripes.
  */
 class TemporalPrior {
  public:
@@ -163,7 +180,9 @@ class TemporalPrior {
   cv::Mat age_;             // CV_16UC1
   cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
   cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed
-  cv::Mat lo_f_, hi_f_;     // scratch
+  int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
+  cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
+  cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
   TemporalPriorStats stats_;
 };
 

@@ -1,0 +1,117 @@
+#!/usr/bin/env bash
+# Sanitizer builds of endo_stereo, each in a catkin workspace of its own (git-ignored ws_*).
+#
+#   scripts/sanitize.sh asan   AddressSanitizer + UndefinedBehaviorSanitizer (CMake ES_SANITIZE=
+#                              address,undefined) in WS_ASAN (default ws_asan), then the whole test
+#                              suite: the core gtests with leak detection, then the rostests with
+#                              the ASan runtime preloaded into the (uninstrumented) nodelet manager
+#                              and Python (leak detection off there: Python's own allocations are
+#                              not ours). Last line: "N passed, N failed"; exit 1 on any failure or
+#                              any sanitizer report.
+#   scripts/sanitize.sh tsan   ThreadSanitizer (ES_SANITIZE=thread) in WS_TSAN (default ws_tsan):
+#                              builds the nodelet and the standalone node, then runs the node under
+#                              a fast stream of pairs while dynamic_reconfigure updates are hammered
+#                              from another process (scripts/soak.sh in its TSan configuration,
+#                              TSAN_FRAMES pairs, default 600). Exit 1 on any ThreadSanitizer report.
+#
+# Environment: JOBS (default 1: the machines are shared), WS_ASAN, WS_TSAN, BUILD_TYPE
+# (default RelWithDebInfo, -O2 -g, so stack traces have lines).
+set -uo pipefail
+ES_ROOT="$(cd "$(dirname "$0")/.." && pwd)"
+mode="${1:-asan}"
+JOBS="${JOBS:-1}"
+export JOBS
+BUILD_TYPE="${BUILD_TYPE:-RelWithDebInfo}"
+export BUILD_TYPE
+
+start_s=$(date +%s)
+elapsed() { echo $(( $(date +%s) - start_s )); }
+
+# Sanitizer reports: count them in the given logs, print the first ones.
+report_count() {
+  local n
+  n=$(cat "$@" 2>/dev/null | grep -cE '^(==[0-9]+==ERROR: (Address|Leak)Sanitizer|WARNING: ThreadSanitizer|SUMMARY: (Address|Leak|Thread|UndefinedBehavior)Sanitizer)|runtime error: ' || true)
+  echo "${n:-0}"
+}
+
+case "$mode" in
+  asan)
+    export WS="${WS_ASAN:-$ES_ROOT/ws_asan}"
+    # shellcheck disable=SC1091
+    source "$ES_ROOT/scripts/env.sh"
+    export CMAKE_EXTRA_ARGS="-DES_SANITIZE=address,undefined ${CMAKE_EXTRA_ARGS:-}"
+    # halt_on_error makes a UBSan report fail the test that triggered it.
+    export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
+    echo "[asan] building in $WS ($BUILD_TYPE, jobs $JOBS)"
+    if ! "$ES_ROOT/scripts/build.sh" > "$WS.build.log" 2>&1 || \
+       ! "$ES_ROOT/scripts/build.sh" tests >> "$WS.build.log" 2>&1; then
+      tail -n 30 "$WS.build.log"
+      echo "[asan] build failed (log: $WS.build.log)"
+      echo "0 passed, 1 failed"
+      exit 1
+    fi
+    echo "[asan] built in $(elapsed) s"
+    es_source_ws
+    rm -rf "$WS/build/test_results"
+    logs="$WS/sanitize_logs"
+    rm -rf "$logs"; mkdir -p "$logs"
+    # 1) gtests (linked with the ASan runtime): leaks are ours, detect them.
+    ASAN_OPTIONS="detect_leaks=1:abort_on_error=0:log_path=$logs/gtest" \
+      make -C "$WS/build" -j1 run_tests_endo_stereo_gtest > "$logs/gtest_run.log" 2>&1
+    echo "[asan] gtests done at $(elapsed) s"
+    # 2) rostests: the nodelet manager and rostest are not instrumented; preload the runtime.
+    if make -C "$WS/build" help 2>/dev/null | grep -q 'run_tests_endo_stereo_rostest$'; then
+      LD_PRELOAD="$(gcc -print-file-name=libasan.so)" \
+      ASAN_OPTIONS="detect_leaks=0:verify_asan_link_order=0:log_path=$logs/rostest" \
+        make -C "$WS/build" -j1 run_tests_endo_stereo_rostest > "$logs/rostest_run.log" 2>&1
+      echo "[asan] rostests done at $(elapsed) s"
+    else
+      echo "[asan] no rostest target in this build"
+    fi
+    reports=$(report_count "$logs"/gtest* "$logs"/rostest* "$logs"/*.log)
+    if [ "$reports" != 0 ]; then
+      echo "[asan] $reports sanitizer report line(s); first ones:"
+      cat "$logs"/gtest* "$logs"/rostest* 2>/dev/null | \
+        grep -E -A12 '==ERROR|runtime error|SUMMARY' | head -n 60
+    fi
+    echo "[asan] total $(elapsed) s (build + tests); logs in $logs"
+    summary=$(/usr/bin/python3 "$ES_ROOT/scripts/test_summary.py" "$WS/build/test_results" | tail -n 1)
+    passed=$(echo "$summary" | grep -oE '^[0-9]+' || echo 0)
+    failed=$(echo "$summary" | grep -oE '[0-9]+ failed' | grep -oE '^[0-9]+' || echo 1)
+    [ "$reports" != 0 ] && failed=$((failed + 1))
+    echo "$passed passed, $failed failed"
+    [ "$failed" = 0 ]
+    ;;
+  tsan)
+    export WS="${WS_TSAN:-$ES_ROOT/ws_tsan}"
+    # shellcheck disable=SC1091
+    source "$ES_ROOT/scripts/env.sh"
+    export CMAKE_EXTRA_ARGS="-DES_SANITIZE=thread ${CMAKE_EXTRA_ARGS:-}"
+    echo "[tsan] building the nodelet in $WS ($BUILD_TYPE, jobs $JOBS)"
+    if ! "$ES_ROOT/scripts/build.sh" endo_stereo_node endo_stereo_nodelet > "$WS.build.log" 2>&1; then
+      tail -n 30 "$WS.build.log"
+      echo "[tsan] build failed (log: $WS.build.log)"
+      exit 1
+    fi
+    echo "[tsan] built in $(elapsed) s"
+    logs="$WS/sanitize_logs"
+    rm -rf "$logs"; mkdir -p "$logs"
+    # The run itself is the soak driver, shorter, with the reconfigure hammer on; the node is
+    # instrumented (it links the TSan runtime), so nothing needs preloading.
+    TSAN_OPTIONS="halt_on_error=0:second_deadlock_stack=1:log_path=$logs/tsan" \
+    SOAK_FRAMES="${TSAN_FRAMES:-600}" SOAK_OUT="$logs" SOAK_LABEL=tsan SOAK_TIMEOUT_S=900 \
+      "$ES_ROOT/scripts/soak.sh"
+    rc=$?
+    reports=$(report_count "$logs"/tsan*)
+    echo "[tsan] run exit $rc, ThreadSanitizer reports: $(cat "$logs"/tsan* 2>/dev/null | grep -c 'WARNING: ThreadSanitizer' || true)"
+    if [ "$reports" != 0 ]; then
+      cat "$logs"/tsan* | grep -A30 'WARNING: ThreadSanitizer' | head -n 80
+    fi
+    echo "[tsan] total $(elapsed) s; logs in $logs"
+    [ "$rc" = 0 ] && [ "$reports" = 0 ]
+    ;;
+  *)
+    echo "usage: $0 asan|tsan" >&2
+    exit 2
+    ;;
+esac
