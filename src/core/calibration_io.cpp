@@ -55,7 +55,7 @@ bool readYamlMatrix(const YAML::Node& root, const std::string& key, int rows, in
       return fail(error, key + ": must have " + std::to_string(rows * cols) + " values, got " +
                              std::to_string(values->size()));
     }
-  } catch (const YAML::Exception& ex) {
+  } catch (const std::exception& ex) {
     return fail(error, key + ": " + ex.what());
   }
   return true;
@@ -137,7 +137,7 @@ bool parseCameraInfoYaml(const std::string& text, CameraCalibration& out, std::s
   YAML::Node root;
   try {
     root = YAML::Load(text);
-  } catch (const YAML::Exception& ex) {
+  } catch (const std::exception& ex) {
     return fail(error, std::string("not valid YAML: ") + ex.what());
   }
   if (!root.IsMap()) return fail(error, "not a camera_info YAML map");
@@ -157,7 +157,7 @@ bool parseCameraInfoYaml(const std::string& text, CameraCalibration& out, std::s
           r["x_offset"] ? r["x_offset"].as<int>() : 0, r["y_offset"] ? r["y_offset"].as<int>() : 0,
           r["width"] ? r["width"].as<int>() : 0, r["height"] ? r["height"].as<int>() : 0);
     }
-  } catch (const YAML::Exception& ex) {
+  } catch (const std::exception& ex) {
     return fail(error, std::string("bad scalar field: ") + ex.what());
   }
   std::vector<double> v;
@@ -237,7 +237,8 @@ bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::
   cv::FileStorage fs;
   try {
     if (!fs.open(path, cv::FileStorage::READ)) return fail(error, path + ": cannot open");
-  } catch (const cv::Exception& ex) {
+  } catch (const std::exception& ex) {
+    // cv::Exception, but FileStorage also lets std::length_error and the like escape.
     return fail(error, path + ": not an OpenCV FileStorage file: " + ex.what());
   }
   StereoCalibration s;
@@ -317,7 +318,7 @@ bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::
     }
     s.left.width = s.right.width = w;
     s.left.height = s.right.height = h;
-  } catch (const cv::Exception& ex) {
+  } catch (const std::exception& ex) {
     return fail(error, path + ": " + ex.what());
   }
   if (!finish(s, path, error)) return false;

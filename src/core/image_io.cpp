@@ -8,10 +8,9 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <vector>
-
-#include <opencv2/imgproc.hpp>
 
 namespace endo_stereo {
 namespace {
@@ -67,7 +66,9 @@ bool writePfm(const std::string& path, const cv::Mat& disparity, std::string* er
   }
   const bool little = hostIsLittleEndian();
   // A negative scale declares little-endian data; the magnitude carries no meaning for disparity.
-  out << "Pf\n" << disparity.cols << " " << disparity.rows << "\n" << (little ? "-1.0" : "1.0") << "\n";
+  out << "Pf\n"
+      << disparity.cols << " " << disparity.rows << "\n"
+      << (little ? "-1.0" : "1.0") << "\n";
   const float inf = std::numeric_limits<float>::infinity();
   std::vector<float> row(disparity.cols);
   // PFM stores rows bottom to top.
@@ -97,7 +98,8 @@ cv::Mat readPfm(const std::string& path, std::string* error) {
     return cv::Mat();
   }
   if (magic == "PF") {
-    setError(error, "readPfm: '" + path + "' is a 3-channel PFM; a disparity must have one channel");
+    setError(error,
+             "readPfm: '" + path + "' is a 3-channel PFM; a disparity must have one channel");
     return cv::Mat();
   }
   if (!readToken(in, w_token) || !readToken(in, h_token) || !readToken(in, scale_token)) {

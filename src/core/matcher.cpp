@@ -25,6 +25,9 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstring>
+#include <atomic>
+#include <cstdio>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -122,8 +125,10 @@ struct Scratch {
   std::vector<int> cover;          // per block, per disparity: pixels whose range holds it
   std::vector<int> iv_start;       // per disparity: first index into ivs
   std::vector<Interval> ivs;       // the intervals of all disparities, grouped by disparity
-  std::vector<Interval> pieces, merged;
+  std::vector<Interval> pieces, merged, need, runs, out_ivs;
   std::vector<uint8_t> cand;       // per right pixel: a candidate of phase B
+  std::vector<int> block_a, block_b;  // per block: first and last selected column
+  std::vector<int> blocks, active, pick, cand_q;
 
   void ensure(int w, int nd) {
     if (w != width || nd != num_d) {
@@ -142,6 +147,8 @@ struct Scratch {
       iv_start.assign(nd + 1, 0);
       ivs.reserve(static_cast<size_t>(nb) * nd);
       cand.assign(w, 0);
+      block_a.assign(nb, 0);
+      block_b.assign(nb, 0);
     }
   }
   /// Forget all vertical sums (new level or new frame).
@@ -247,8 +254,22 @@ struct SliceArgs {
 // other maximum, and a range end where the profile rises towards it (the true peak may lie
 // beyond), competes for the peak gap. Local maxima are never adjacent, so "outside +-1 px of the
 // best" holds by construction.
+//
+// Written once on GCC vector types (8 lanes; AVX2 in the avx2 clone, two SSE halves otherwise)
+// for the body and once in scalar form for the tail; both compute the same thing lane by lane.
+typedef float V8f __attribute__((vector_size(32)));
+typedef int V8i __attribute__((vector_size(32)));
+
+__attribute__((always_inline)) inline V8f load8(const float* p) {
+  V8f v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+__attribute__((always_inline)) inline void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
+__attribute__((always_inline)) inline V8f max8(V8f a, V8f b) { return a > b ? a : b; }
+
 template <bool kOwn, bool kRl>
-inline void sliceUpdate(const SliceArgs& g) {
+__attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
   const float d = g.d, dm1 = g.d - 1.f;
   const float* __restrict h = g.h;
   const float* __restrict mean_l = g.mean_l;
@@ -267,7 +288,44 @@ inline void sliceUpdate(const SliceArgs& g) {
   float* __restrict second = g.second;
   float* __restrict rb_v = g.rb_v;
   float* __restrict rb_d = g.rb_d;
-  for (int i = 0; i < g.n; ++i) {
+  int i = 0;
+  const V8f vd = {d, d, d, d, d, d, d, d};
+  const V8f vdm1 = vd - 1.f;
+  const V8f vninf = {kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf};
+  const V8f vzero = {0, 0, 0, 0, 0, 0, 0, 0};
+  for (; i + 8 <= g.n; i += 8) {
+    const V8f s = (load8(h + i) - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) *
+                  load8(inv_r + i);
+    const V8f lo = load8(elo + i), hi = load8(ehi + i);
+    const V8i inr = (lo <= vd) & (vd <= hi);
+    if (kOwn) {
+      const V8i own = inr & (load8(act + i) > vzero);
+      const V8f a1 = load8(p1 + i), a2 = load8(p2 + i), bb = load8(best + i);
+      const V8i is_max = own & (vd >= lo + 2.f) & (a1 > a2) & (a1 >= s);
+      const V8i new_best = is_max & (a1 > bb);
+      V8f cand = new_best ? bb : (is_max ? a1 : vninf);
+      const V8i lo_end = own & (vd == lo + 1.f) & (a1 > s);
+      const V8i hi_end = own & (vd == hi) & (s > a1);
+      cand = max8(cand, lo_end ? a1 : vninf);
+      cand = max8(cand, hi_end ? s : vninf);
+      store8(second + i, max8(load8(second + i), cand));
+      store8(best + i, new_best ? a1 : bb);
+      store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
+      store8(best_l + i, new_best ? a2 : load8(best_l + i));
+      store8(best_r + i, new_best ? s : load8(best_r + i));
+      store8(p2 + i, own ? a1 : a2);
+      store8(p1 + i, own ? s : a1);
+    }
+    if (kRl) {
+      // Right-to-left profile of right pixel x - d: S_RL(x - d, d) = S_LR(x, d). Strict > keeps
+      // the smallest disparity among equal values, whatever the order of the intervals.
+      const V8f rv = load8(rb_v + i);
+      const V8i up = inr & (s > rv);
+      store8(rb_v + i, up ? s : rv);
+      store8(rb_d + i, up ? vd : load8(rb_d + i));
+    }
+  }
+  for (; i < g.n; ++i) {
     const float s = (h[i] - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
     const bool inr = (elo[i] <= d) & (d <= ehi[i]);
     if (kOwn) {
@@ -289,8 +347,6 @@ inline void sliceUpdate(const SliceArgs& g) {
       p1[i] = own ? s : a1;
     }
     if (kRl) {
-      // Right-to-left profile of right pixel x - d: S_RL(x - d, d) = S_LR(x, d). Strict > keeps
-      // the smallest disparity among equal values, whatever the order of the intervals.
       const float rv = rb_v[i];
       const bool up = inr & (s > rv);
       rb_v[i] = up ? s : rv;
@@ -370,10 +426,11 @@ struct LevelContext {
   MatchResult* out;
 };
 
-/// Make the vertical window sums of disparity index k valid on columns [a, b] of row y: columns
-/// already computed for row y are kept, columns valid for row y - 1 are updated by one row in and
-/// one row out, the rest are summed afresh over the window's rows. All exact (integers in float).
-void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
+/// Make the vertical window sums of disparity index k valid on the columns @p need (sorted,
+/// disjoint intervals) of row y: columns already computed for row y are kept, columns valid for
+/// row y - 1 are updated by one row in and one row out, the rest are summed afresh over the
+/// window's rows. All exact (integers in float), so the three ways give identical values.
+void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<Interval>& need) {
   const int d = c.dmin + k;
   const int r = c.r;
   VValidity& vv = s.valid[k];
@@ -387,17 +444,23 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
     vv.cur_row = y;
   }
   float* v = s.v.data() + static_cast<size_t>(k) * c.width;
-  // Pieces of [a, b] not yet computed for row y.
+  // pieces := need minus cur.
   s.pieces.clear();
-  int x = a;
-  for (const Interval& iv : vv.cur) {
-    if (iv.b < x) continue;
-    if (iv.a > b) break;
-    if (iv.a > x) s.pieces.push_back({x, iv.a - 1});
-    x = std::max(x, iv.b + 1);
+  size_t ci = 0;
+  for (const Interval& nv : need) {
+    int x = nv.a;
+    while (ci < vv.cur.size() && vv.cur[ci].b < x) ++ci;
+    for (size_t j = ci; j < vv.cur.size() && vv.cur[j].a <= nv.b; ++j) {
+      if (vv.cur[j].a > x) s.pieces.push_back({x, vv.cur[j].a - 1});
+      x = std::max(x, vv.cur[j].b + 1);
+    }
+    if (x <= nv.b) s.pieces.push_back({x, nv.b});
   }
-  if (x <= b) s.pieces.push_back({x, b});
   if (s.pieces.empty()) return;
+  const float* l_in = c.lf->ptr<float>(std::min(y + r, c.height - 1));
+  const float* r_in = c.rf->ptr<float>(std::min(y + r, c.height - 1)) - d;
+  const float* l_out = c.lf->ptr<float>(std::max(y - r - 1, 0));
+  const float* r_out = c.rf->ptr<float>(std::max(y - r - 1, 0)) - d;
   auto fresh = [&](int fa, int fb) {
     const int n = fb - fa + 1;
     vSet(n, v + fa, c.lf->ptr<float>(y - r) + fa, c.rf->ptr<float>(y - r) + fa - d);
@@ -405,18 +468,15 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
       vAdd(n, v + fa, c.lf->ptr<float>(yy) + fa, c.rf->ptr<float>(yy) + fa - d);
     }
   };
-  auto running = [&](int ra, int rb) {
-    vRunning(rb - ra + 1, v + ra, c.lf->ptr<float>(y + r) + ra, c.rf->ptr<float>(y + r) + ra - d,
-             c.lf->ptr<float>(y - r - 1) + ra, c.rf->ptr<float>(y - r - 1) + ra - d);
-  };
+  size_t pi = 0;
   for (const Interval& p : s.pieces) {
     int px = p.a;
-    for (const Interval& iv : vv.prev) {
-      if (iv.b < px) continue;
-      if (iv.a > p.b) break;
+    while (pi < vv.prev.size() && vv.prev[pi].b < px) ++pi;
+    for (size_t j = pi; j < vv.prev.size() && vv.prev[j].a <= p.b; ++j) {
+      const Interval& iv = vv.prev[j];
       if (iv.a > px) fresh(px, iv.a - 1);
-      const int e = std::min(p.b, iv.b);
-      running(std::max(px, iv.a), e);
+      const int ra = std::max(px, iv.a), e = std::min(p.b, iv.b);
+      vRunning(e - ra + 1, v + ra, l_in + ra, r_in + ra, l_out + ra, r_out + ra);
       px = e + 1;
       if (px > p.b) break;
     }
@@ -426,9 +486,10 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
   s.merged.clear();
   size_t i = 0, j = 0;
   while (i < vv.cur.size() || j < s.pieces.size()) {
-    const Interval next = (j >= s.pieces.size() || (i < vv.cur.size() && vv.cur[i].a < s.pieces[j].a))
-                              ? vv.cur[i++]
-                              : s.pieces[j++];
+    const Interval next =
+        (j >= s.pieces.size() || (i < vv.cur.size() && vv.cur[i].a < s.pieces[j].a))
+            ? vv.cur[i++]
+            : s.pieces[j++];
     if (!s.merged.empty() && next.a <= s.merged.back().b + 1) {
       s.merged.back().b = std::max(s.merged.back().b, next.b);
     } else {
@@ -438,21 +499,31 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
   std::swap(vv.cur, s.merged);
 }
 
-/// For each disparity, the column intervals (whole blocks of kBlock columns, merged) holding a
-/// pixel selected by @p pick whose effective range contains it; clipped to the columns where both
-/// windows fit. Results in s.ivs / s.iv_start.
-template <typename Pick>
-void buildIntervals(const LevelContext& c, Scratch& s, Pick pick) {
+/// For each disparity, the column intervals worth computing: the hull, within each block of
+/// kBlock columns, of the pixels selected by @p pick, for the blocks where one of them has the
+/// disparity in its effective range; intervals closer than a window width are merged (their
+/// vertical sums overlap anyway). Clipped to the columns where both windows fit. Results in
+/// s.ivs / s.iv_start. Cost O(W + blocks * disparities).
+void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& cols) {
   const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
   const int nb = (W + kBlock - 1) / kBlock;
-  std::fill(s.cover.begin(), s.cover.begin() + static_cast<size_t>(nb) * (nd + 1), 0);
-  for (int x = 0; x < W; ++x) {
-    if (!pick(x)) continue;
-    int* cv = s.cover.data() + static_cast<size_t>(x / kBlock) * (nd + 1);
+  // Blocks holding a selected column, in increasing order.
+  s.blocks.clear();
+  for (int x : cols) {
+    const int b = x / kBlock;
+    if (s.blocks.empty() || s.blocks.back() != b) {
+      s.blocks.push_back(b);
+      std::fill(s.cover.begin() + static_cast<size_t>(b) * (nd + 1),
+                s.cover.begin() + static_cast<size_t>(b + 1) * (nd + 1), 0);
+      s.block_a[b] = x;
+    }
+    int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
     ++cv[s.elo_i[x] - c.dmin];
     --cv[s.ehi_i[x] - c.dmin + 1];
+    s.block_b[b] = x;
   }
-  for (int b = 0; b < nb; ++b) {
+  (void)nb;
+  for (int b : s.blocks) {
     int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
     for (int k = 1; k < nd; ++k) cv[k] += cv[k - 1];
   }
@@ -461,11 +532,11 @@ void buildIntervals(const LevelContext& c, Scratch& s, Pick pick) {
     s.iv_start[k] = static_cast<int>(s.ivs.size());
     const int d = c.dmin + k;
     const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
-    for (int b = 0; b < nb; ++b) {
+    for (int b : s.blocks) {
       if (s.cover[static_cast<size_t>(b) * (nd + 1) + k] <= 0) continue;
-      const int a = std::max(lo, b * kBlock), e = std::min(hi, (b + 1) * kBlock - 1);
+      const int a = std::max(lo, s.block_a[b]), e = std::min(hi, s.block_b[b]);
       if (a > e) continue;
-      if (s.ivs.size() > static_cast<size_t>(s.iv_start[k]) && s.ivs.back().b + 1 >= a) {
+      if (s.ivs.size() > static_cast<size_t>(s.iv_start[k]) && s.ivs.back().b + c.w >= a) {
         s.ivs.back().b = e;
       } else {
         s.ivs.push_back({a, e});
@@ -475,41 +546,58 @@ void buildIntervals(const LevelContext& c, Scratch& s, Pick pick) {
   s.iv_start[nd] = static_cast<int>(s.ivs.size());
 }
 
-/// NCC slice of disparity index k over columns [a, b] of row y, fed to the peak tracker.
+struct DbgCounters { std::atomic<long> dense_el{0}, own_el{0}, rl_el{0}, rows_dense{0}, rows_sparse{0}; ~DbgCounters(){ if(getenv("ES_DBG")) fprintf(stderr,"dense %ld own %ld rl %ld rows d %ld s %ld\n",dense_el.load(),own_el.load(),rl_el.load(),rows_dense.load(),rows_sparse.load()); } };
+DbgCounters g_dbg;
+/// NCC slices of disparity index k over the column intervals @p out_ivs (sorted, disjoint) of
+/// row y, fed to the peak tracker.
 template <bool kOwn, bool kRl>
-void runSlice(const LevelContext& c, Scratch& s, int k, int y, int a, int b) {
+void runSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* out_ivs, int count) {
+  if (count <= 0) return;
   const int d = c.dmin + k;
   const int r = c.r;
-  ensureV(c, s, k, y, a - r, b + r);
-  const int n = b - a + 1;
+  s.need.clear();
+  for (int i = 0; i < count; ++i) {
+    const int a = out_ivs[i].a - r, b = out_ivs[i].b + r;
+    if (!s.need.empty() && a <= s.need.back().b + 1) {
+      s.need.back().b = std::max(s.need.back().b, b);
+    } else {
+      s.need.push_back({a, b});
+    }
+  }
+  ensureV(c, s, k, y, s.need);
   const float* v = s.v.data() + static_cast<size_t>(k) * c.width;
-  boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
-  SliceArgs g;
-  g.n = n;
-  g.d = static_cast<float>(d);
-  g.h = s.hsum.data();
-  g.mean_l = c.maps->mean_l.ptr<float>(y) + a;
-  g.inv_l = c.maps->inv_l.ptr<float>(y) + a;
-  g.sum_r = c.maps->sum_r.ptr<float>(y) + a - d;
-  g.inv_r = c.maps->inv_r.ptr<float>(y) + a - d;
-  g.elo = s.elo.data() + a;
-  g.ehi = s.ehi.data() + a;
-  g.act = s.act.data() + a;
-  g.p1 = s.p1.data() + a;
-  g.p2 = s.p2.data() + a;
-  g.best = s.best.data() + a;
-  g.best_d = s.best_d.data() + a;
-  g.best_l = s.best_l.data() + a;
-  g.best_r = s.best_r.data() + a;
-  g.second = s.second.data() + a;
-  g.rb_v = s.rb_v.data() + a - d;
-  g.rb_d = s.rb_d.data() + a - d;
-  if (kOwn && kRl) {
-    sliceOwnAndRl(g);
-  } else if (kOwn) {
-    sliceOwn(g);
-  } else {
-    sliceRl(g);
+  for (int i = 0; i < count; ++i) {
+    const int a = out_ivs[i].a;
+    const int n = out_ivs[i].b - a + 1;
+    if (kOwn && kRl) g_dbg.dense_el += n; else if (kOwn) g_dbg.own_el += n; else g_dbg.rl_el += n;
+    boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
+    SliceArgs g;
+    g.n = n;
+    g.d = static_cast<float>(d);
+    g.h = s.hsum.data();
+    g.mean_l = c.maps->mean_l.ptr<float>(y) + a;
+    g.inv_l = c.maps->inv_l.ptr<float>(y) + a;
+    g.sum_r = c.maps->sum_r.ptr<float>(y) + a - d;
+    g.inv_r = c.maps->inv_r.ptr<float>(y) + a - d;
+    g.elo = s.elo.data() + a;
+    g.ehi = s.ehi.data() + a;
+    g.act = s.act.data() + a;
+    g.p1 = s.p1.data() + a;
+    g.p2 = s.p2.data() + a;
+    g.best = s.best.data() + a;
+    g.best_d = s.best_d.data() + a;
+    g.best_l = s.best_l.data() + a;
+    g.best_r = s.best_r.data() + a;
+    g.second = s.second.data() + a;
+    g.rb_v = s.rb_v.data() + a - d;
+    g.rb_d = s.rb_d.data() + a - d;
+    if (kOwn && kRl) {
+      sliceOwnAndRl(g);
+    } else if (kOwn) {
+      sliceOwn(g);
+    } else {
+      sliceRl(g);
+    }
   }
 }
 
@@ -535,50 +623,54 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   const float gmin = static_cast<float>(c.mp->gamma_min);
 
   // Effective range of each pixel at this window: its requested range, cut so that both windows
-  // lie inside the images. Active = not accepted yet, range of at least 3 values (an interior
-  // maximum needs two neighbours), left patch with structure.
-  int n_active = 0, n_valid = 0;
+  // lie inside the images (empty outside [r, W - r)). Computed for every column, since the
+  // right-to-left profiles need the ranges of pixels that are not matched themselves.
+  int* elo_i = s.elo_i.data();
+  int* ehi_i = s.ehi_i.data();
+  float* elo = s.elo.data();
+  float* ehi = s.ehi.data();
   for (int x = 0; x < W; ++x) {
-    int lo = kEmptyLo, hi = kEmptyHi;
-    if (x >= r && x < W - r && rlo[x] <= rhi[x]) {
-      lo = std::max(rlo[x], x - (W - 1 - r));
-      hi = std::min(rhi[x], x - r);
-      if (lo > hi) {
-        lo = kEmptyLo;
-        hi = kEmptyHi;
-      }
-    }
-    s.elo_i[x] = lo;
-    s.ehi_i[x] = hi;
-    s.elo[x] = static_cast<float>(std::max(lo, -1000000));
-    s.ehi[x] = static_cast<float>(std::min(hi, 1000000));
-    float a = 0.f;
-    if (lo <= hi) {
-      ++n_valid;
-      if (st[x] == 0) {
-        if (hi - lo < 2) {
-          code[x] = kCodeNoPeak;
-        } else if (!(gl[x] > gmin)) {
-          code[x] = kCodeRejectStructure;
-        } else {
-          a = 1.f;
-          ++n_active;
-        }
-      }
-    }
-    s.act[x] = a;
+    const bool inside = (x >= r) & (x < W - r);
+    int lo = std::max(rlo[x], x - (W - 1 - r));
+    int hi = std::min(rhi[x], x - r);
+    const bool ok = inside & (lo <= hi);
+    lo = ok ? lo : kEmptyLo;
+    hi = ok ? hi : kEmptyHi;
+    elo_i[x] = lo;
+    ehi_i[x] = hi;
+    elo[x] = ok ? static_cast<float>(lo) : 1e9f;
+    ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
   }
-  if (n_active == 0) return;
-
-  for (int x = 0; x < W; ++x) {
+  // Active = not accepted yet, range of at least 3 values (an interior maximum needs two
+  // neighbours), left patch with structure. The others that are still open get their code.
+  s.active.clear();
+  int n_valid = 0;
+  for (int x = r; x < W - r; ++x) {
+    if (elo_i[x] > ehi_i[x]) continue;
+    ++n_valid;
+    if (st[x] != 0) continue;
+    if (ehi_i[x] - elo_i[x] < 2) {
+      code[x] = kCodeNoPeak;
+    } else if (!(gl[x] > gmin)) {
+      code[x] = kCodeRejectStructure;
+    } else {
+      s.active.push_back(x);
+    }
+  }
+  if (s.active.empty()) return;
+  std::fill(s.act.begin(), s.act.begin() + W, 0.f);
+  for (int x : s.active) {
+    s.act[x] = 1.f;
     s.p1[x] = s.p2[x] = kNegInf;
     s.best[x] = s.second[x] = kNegInf;
     s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
-    s.rb_v[x] = kNegInf;
-    s.rb_d[x] = 0.f;
   }
+  std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
+  std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
 
+  const int n_active = static_cast<int>(s.active.size());
   const bool dense = 2 * n_active >= n_valid;
+  if (dense) g_dbg.rows_dense++; else g_dbg.rows_sparse++;
   const float* gr = c.maps->gamma_r.ptr<float>(y);
   const float delta_min = static_cast<float>(c.mp->delta_min);
   const float min_ncc = static_cast<float>(c.mp->min_ncc);
@@ -589,51 +681,50 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     return s.best[x] - comp;
   };
   if (dense) {
-    buildIntervals(c, s, [&](int x) { return s.elo_i[x] <= s.ehi_i[x]; });
+    s.pick.clear();
+    for (int x = r; x < W - r; ++x) {
+      if (elo_i[x] <= ehi_i[x]) s.pick.push_back(x);
+    }
+    buildIntervals(c, s, s.pick);
     for (int k = 0; k < nd; ++k) {
-      for (int i = s.iv_start[k]; i < s.iv_start[k + 1]; ++i) {
-        runSlice<true, true>(c, s, k, y, s.ivs[i].a, s.ivs[i].b);
-      }
+      runSlices<true, true>(c, s, k, y, s.ivs.data() + s.iv_start[k],
+                            s.iv_start[k + 1] - s.iv_start[k]);
     }
   } else {
-    buildIntervals(c, s, [&](int x) { return s.act[x] > 0.f; });
+    buildIntervals(c, s, s.active);
     for (int k = 0; k < nd; ++k) {
-      for (int i = s.iv_start[k]; i < s.iv_start[k + 1]; ++i) {
-        runSlice<true, false>(c, s, k, y, s.ivs[i].a, s.ivs[i].b);
-      }
+      runSlices<true, false>(c, s, k, y, s.ivs.data() + s.iv_start[k],
+                             s.iv_start[k + 1] - s.iv_start[k]);
     }
     // Phase B only for pixels that pass everything but the left-right check.
-    std::fill(s.cand.begin(), s.cand.end(), 0);
-    int qa = W, qb = -1;
-    for (int x = 0; x < W; ++x) {
-      if (s.act[x] <= 0.f || s.best[x] == kNegInf) continue;
+    s.cand_q.clear();
+    for (int x : s.active) {
+      if (s.best[x] == kNegInf) continue;
       const int q = x - static_cast<int>(s.best_d[x]);
-      const float delta = peakGap(x);
-      if (!(gr[q] > gmin) || !(delta > delta_min) || s.best[x] < min_ncc) continue;
-      s.cand[q] = 1;
-      qa = std::min(qa, q);
-      qb = std::max(qb, q);
+      if (!(gr[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < min_ncc) continue;
+      s.cand_q.push_back(q);
     }
-    if (qa <= qb) {
+    if (!s.cand_q.empty()) {
+      std::sort(s.cand_q.begin(), s.cand_q.end());
       // Runs of candidate right pixels (gaps shorter than a window merged: the vertical sums of
       // the gap are needed anyway for the horizontal window sums).
-      s.merged.clear();
-      for (int q = qa; q <= qb; ++q) {
-        if (!s.cand[q]) continue;
-        if (!s.merged.empty() && q <= s.merged.back().b + c.w) {
-          s.merged.back().b = q;
+      s.runs.clear();
+      for (int q : s.cand_q) {
+        if (!s.runs.empty() && q <= s.runs.back().b + c.w) {
+          s.runs.back().b = std::max(s.runs.back().b, q);
         } else {
-          s.merged.push_back({q, q});
+          s.runs.push_back({q, q});
         }
       }
-      const std::vector<Interval> runs = s.merged;  // small; ensureV reuses s.merged
       for (int k = 0; k < nd; ++k) {
         const int d = c.dmin + k;
         const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
-        for (const Interval& run : runs) {
+        s.out_ivs.clear();
+        for (const Interval& run : s.runs) {
           const int a = std::max(lo, run.a + d), b = std::min(hi, run.b + d);
-          if (a <= b) runSlice<false, true>(c, s, k, y, a, b);
+          if (a <= b) s.out_ivs.push_back({a, b});
         }
+        runSlices<false, true>(c, s, k, y, s.out_ivs.data(), static_cast<int>(s.out_ivs.size()));
       }
     }
   }
@@ -644,8 +735,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   uint8_t* stw = c.state->ptr<uint8_t>(y);
   uint8_t* widx = c.window_idx->ptr<uint8_t>(y);
   const float eps = static_cast<float>(c.mp->epsilon_px);
-  for (int x = 0; x < W; ++x) {
-    if (s.act[x] <= 0.f) continue;
+  for (int x : s.active) {
     if (s.best[x] == kNegInf) {
       code[x] = kCodeNoPeak;
       continue;
@@ -678,7 +768,6 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     widx[x] = static_cast<uint8_t>(c.level);
   }
 }
-
 
 void computeLevelMaps(const cv::Mat& lf, const cv::Mat& rf, const cv::Mat& lap_l,
                       const cv::Mat& lap_l2, const cv::Mat& lap_r, const cv::Mat& lap_r2, int w,
@@ -889,8 +978,10 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
+    const auto tl0 = std::chrono::steady_clock::now();
     computeLevelMaps(im.lf, im.rf, im.lap_l, im.lap_l2, im.lap_r, im.lap_r2, w, im.maps, im.tmp1,
                      im.tmp2);
+    const auto tl1 = std::chrono::steady_clock::now();
     LevelContext c{&mp, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
                    &im.lf, &im.rf, &im.range_lo, &im.range_hi, &im.maps, &im.state,
                    &im.window_idx, &out};
@@ -904,11 +995,16 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       }
       im.release(std::move(s));
     });
+    if (getenv("ES_DBG")) fprintf(stderr, "level %d maps %.1f ms match %.1f ms\n", level,
+      std::chrono::duration<double, std::milli>(tl1 - tl0).count(),
+      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tl1).count());
   }
+  const auto te0 = std::chrono::steady_clock::now();
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4);
   }
   const auto t1 = std::chrono::steady_clock::now();
+  if (getenv("ES_DBG")) fprintf(stderr, "edge %.1f ms\n", std::chrono::duration<double, std::milli>(t1 - te0).count());
 
   for (int y = 0; y < H; ++y) {
     const uint8_t* cd = out.code.ptr<uint8_t>(y);

@@ -5,6 +5,8 @@
 // params struct means adding one line here; test_params_io checks that every key round-trips.
 #include "endo_stereo/core/params_io.hpp"
 
+#include <yaml-cpp/yaml.h>
+
 #include <algorithm>
 #include <cctype>
 #include <charconv>
@@ -15,8 +17,6 @@
 #include <map>
 #include <sstream>
 #include <utility>
-
-#include <yaml-cpp/yaml.h>
 
 namespace endo_stereo {
 namespace {
@@ -170,34 +170,35 @@ const std::vector<Entry>& table() {
     t.push_back(field("matcher", "gamma_min", &PP::matcher, &MatcherParams::gamma_min));
     t.push_back(field("matcher", "delta_min", &PP::matcher, &MatcherParams::delta_min));
     t.push_back(field("matcher", "epsilon_px", &PP::matcher, &MatcherParams::epsilon_px));
+    t.push_back(field("matcher", "min_ncc", &PP::matcher, &MatcherParams::min_ncc));
     t.push_back(field("matcher", "subpixel", &PP::matcher, &MatcherParams::subpixel));
     t.push_back(field("matcher", "num_threads", &PP::matcher, &MatcherParams::num_threads));
-    t.push_back(field("matcher", "edge_window_max_px", &PP::matcher,
-                      &MatcherParams::edge_window_max_px));
+    t.push_back(
+        field("matcher", "edge_window_max_px", &PP::matcher, &MatcherParams::edge_window_max_px));
     t.push_back(field("matcher", "edge_disparity_jump_px", &PP::matcher,
                       &MatcherParams::edge_disparity_jump_px));
     // --- filter --------------------------------------------------------------------------------
-    t.push_back(field("filter", "remove_outliers", &PP::filter,
-                      &PostFilterParams::remove_outliers));
-    t.push_back(field("filter", "outlier_window_px", &PP::filter,
-                      &PostFilterParams::outlier_window_px));
+    t.push_back(
+        field("filter", "remove_outliers", &PP::filter, &PostFilterParams::remove_outliers));
+    t.push_back(
+        field("filter", "outlier_window_px", &PP::filter, &PostFilterParams::outlier_window_px));
     t.push_back(field("filter", "outlier_disparity_tol_px", &PP::filter,
                       &PostFilterParams::outlier_disparity_tol_px));
-    t.push_back(field("filter", "outlier_min_share", &PP::filter,
-                      &PostFilterParams::outlier_min_share));
+    t.push_back(
+        field("filter", "outlier_min_share", &PP::filter, &PostFilterParams::outlier_min_share));
     t.push_back(field("filter", "fill_holes", &PP::filter, &PostFilterParams::fill_holes));
-    t.push_back(field("filter", "fill_max_hole_px", &PP::filter,
-                      &PostFilterParams::fill_max_hole_px));
+    t.push_back(
+        field("filter", "fill_max_hole_px", &PP::filter, &PostFilterParams::fill_max_hole_px));
     // --- preprocess ----------------------------------------------------------------------------
     t.push_back(field("preprocess", "downsample", &PP::preprocess, &PreprocessParams::downsample));
     t.push_back(enumField("preprocess", "interlace", &PP::preprocess, &PreprocessParams::interlace,
                           {{"none", InterlaceMode::kNone},
                            {"downsample", InterlaceMode::kDownsample},
                            {"field", InterlaceMode::kField}}));
-    t.push_back(field("preprocess", "field_parity", &PP::preprocess,
-                      &PreprocessParams::field_parity));
-    t.push_back(field("preprocess", "mono16_bits", &PP::preprocess,
-                      &PreprocessParams::mono16_bits));
+    t.push_back(
+        field("preprocess", "field_parity", &PP::preprocess, &PreprocessParams::field_parity));
+    t.push_back(
+        field("preprocess", "mono16_bits", &PP::preprocess, &PreprocessParams::mono16_bits));
     // --- rectify -------------------------------------------------------------------------------
     t.push_back(enumField("rectify", "mode", &PP::rectify, &RectifyParams::mode,
                           {{"calibrated", RectifyMode::kCalibrated},
@@ -206,31 +207,31 @@ const std::vector<Entry>& table() {
     t.push_back(field("rectify", "alpha", &PP::rectify, &RectifyParams::alpha));
     t.push_back(field("rectify", "zero_disparity", &PP::rectify, &RectifyParams::zero_disparity));
     t.push_back(field("rectify", "output_width_px", &PP::rectify, &RectifyParams::output_width_px));
-    t.push_back(field("rectify", "output_height_px", &PP::rectify,
-                      &RectifyParams::output_height_px));
+    t.push_back(
+        field("rectify", "output_height_px", &PP::rectify, &RectifyParams::output_height_px));
     t.push_back(field("rectify", "output_scale_x", &PP::rectify, &RectifyParams::output_scale_x));
     t.push_back(field("rectify", "output_scale_y", &PP::rectify, &RectifyParams::output_scale_y));
-    t.push_back(field("rectify", "fixed_point_maps", &PP::rectify,
-                      &RectifyParams::fixed_point_maps));
+    t.push_back(
+        field("rectify", "fixed_point_maps", &PP::rectify, &RectifyParams::fixed_point_maps));
     t.push_back(enumField("rectify", "method", &PP::rectify, &RectifyParams::method,
                           {{"auto", UncalibratedMethod::kAuto},
                            {"homography", UncalibratedMethod::kHomography},
                            {"polar", UncalibratedMethod::kPolar}}));
     t.push_back(field("rectify", "sift_features", &PP::rectify, &RectifyParams::sift_features));
     t.push_back(field("rectify", "ratio_test", &PP::rectify, &RectifyParams::ratio_test));
-    t.push_back(field("rectify", "ransac_threshold_px", &PP::rectify,
-                      &RectifyParams::ransac_threshold_px));
-    t.push_back(field("rectify", "ransac_confidence", &PP::rectify,
-                      &RectifyParams::ransac_confidence));
+    t.push_back(
+        field("rectify", "ransac_threshold_px", &PP::rectify, &RectifyParams::ransac_threshold_px));
+    t.push_back(
+        field("rectify", "ransac_confidence", &PP::rectify, &RectifyParams::ransac_confidence));
     t.push_back(field("rectify", "min_inliers", &PP::rectify, &RectifyParams::min_inliers));
-    t.push_back(field("rectify", "estimation_frames", &PP::rectify,
-                      &RectifyParams::estimation_frames));
+    t.push_back(
+        field("rectify", "estimation_frames", &PP::rectify, &RectifyParams::estimation_frames));
     t.push_back(field("rectify", "reestimate_threshold_px", &PP::rectify,
                       &RectifyParams::reestimate_threshold_px));
-    t.push_back(field("rectify", "reestimate_after", &PP::rectify,
-                      &RectifyParams::reestimate_after));
-    t.push_back(field("rectify", "polar_auto_distance", &PP::rectify,
-                      &RectifyParams::polar_auto_distance));
+    t.push_back(
+        field("rectify", "reestimate_after", &PP::rectify, &RectifyParams::reestimate_after));
+    t.push_back(
+        field("rectify", "polar_auto_distance", &PP::rectify, &RectifyParams::polar_auto_distance));
     t.push_back(field("rectify", "focal_px", &PP::rectify, &RectifyParams::focal_px));
     t.push_back(field("rectify", "baseline_m", &PP::rectify, &RectifyParams::baseline_m));
     t.push_back(field("rectify", "quality_stride", &PP::rectify, &RectifyParams::quality_stride));
@@ -239,14 +240,18 @@ const std::vector<Entry>& table() {
                       &RectifyParams::quality_max_features));
     // --- temporal ------------------------------------------------------------------------------
     t.push_back(field("temporal", "enabled", &PP::temporal, &TemporalParams::enabled));
-    t.push_back(field("temporal", "prior_radius_px", &PP::temporal,
-                      &TemporalParams::prior_radius_px));
+    t.push_back(
+        field("temporal", "prior_radius_px", &PP::temporal, &TemporalParams::prior_radius_px));
     t.push_back(field("temporal", "prior_neighbourhood_px", &PP::temporal,
                       &TemporalParams::prior_neighbourhood_px));
+    t.push_back(field("temporal", "prior_edge_zone_px", &PP::temporal,
+                      &TemporalParams::prior_edge_zone_px));
     t.push_back(field("temporal", "max_prior_age_frames", &PP::temporal,
                       &TemporalParams::max_prior_age_frames));
     t.push_back(field("temporal", "max_prior_failures", &PP::temporal,
                       &TemporalParams::max_prior_failures));
+    t.push_back(field("temporal", "refresh_period_frames", &PP::temporal,
+                      &TemporalParams::refresh_period_frames));
     t.push_back(field("temporal", "max_gap_s", &PP::temporal, &TemporalParams::max_gap_s));
     t.push_back(field("temporal", "fused_max_age_frames", &PP::temporal,
                       &TemporalParams::fused_max_age_frames));
@@ -292,10 +297,14 @@ const std::vector<std::string>& pipelineParamSections() {
 
 std::string paramTypeName(ParamType type) {
   switch (type) {
-    case ParamType::kBool: return "bool";
-    case ParamType::kInt: return "int";
-    case ParamType::kDouble: return "double";
-    case ParamType::kString: return "string";
+    case ParamType::kBool:
+      return "bool";
+    case ParamType::kInt:
+      return "int";
+    case ParamType::kDouble:
+      return "double";
+    case ParamType::kString:
+      return "string";
   }
   return "?";
 }

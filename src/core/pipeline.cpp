@@ -19,11 +19,16 @@ double msSince(Clock::time_point start) {
 std::string encodingOrDefault(const std::string& encoding, const cv::Mat& image) {
   if (!encoding.empty()) return encoding;
   switch (image.type()) {
-    case CV_8UC1: return "mono8";
-    case CV_16UC1: return "mono16";
-    case CV_8UC3: return "bgr8";
-    case CV_8UC4: return "bgra8";
-    default: return "";
+    case CV_8UC1:
+      return "mono8";
+    case CV_16UC1:
+      return "mono16";
+    case CV_8UC3:
+      return "bgr8";
+    case CV_8UC4:
+      return "bgra8";
+    default:
+      return "";
   }
 }
 
@@ -107,8 +112,9 @@ std::string Pipeline::setCalibration(const StereoCalibration& calibration) {
 }
 
 void Pipeline::reset() {
+  // Only the temporal state: an uncalibrated rectification estimate stays valid for the same
+  // camera and is costly to rebuild (several frames of SIFT).
   impl_->temporal.reset();
-  impl_->rectifier.reset();
 }
 
 const TemporalTracker& Pipeline::temporal() const { return impl_->temporal; }

@@ -72,8 +72,12 @@ std::string RectifyParams::validate() const {
   };
   if (!(alpha == -1.0 || (alpha >= 0.0 && alpha <= 1.0)))
     return bad("alpha", "-1 or in [0, 1]", alpha);
-  if (output_width_px < 0) return bad("output_width_px", ">= 0", output_width_px);
-  if (output_height_px < 0) return bad("output_height_px", ">= 0", output_height_px);
+  if (output_width_px < 0 || output_width_px > 32768) {
+    return bad("output_width_px", "in [0, 32768]", output_width_px);
+  }
+  if (output_height_px < 0 || output_height_px > 32768) {
+    return bad("output_height_px", "in [0, 32768]", output_height_px);
+  }
   if (!(output_scale_x > 0.0 && output_scale_x <= 4.0))
     return bad("output_scale_x", "in (0, 4]", output_scale_x);
   if (!(output_scale_y > 0.0 && output_scale_y <= 4.0))
@@ -255,7 +259,7 @@ struct StereoRectifier::Impl {
         cv::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r), out_size,
                                     map_type, map_r1, map_r2);
       }
-    } catch (const cv::Exception& ex) {
+    } catch (const std::exception& ex) {
       return fail(error, std::string("rectification maps could not be built: ") + ex.what());
     }
     const double baseline = -P_r(0, 3) / P_r(0, 0);
@@ -353,6 +357,22 @@ struct StereoRectifier::Impl {
         << ") over " << pooled_frames << " frame(s), need >= " << params.min_inliers;
       *why = m.str();
       return false;
+    }
+    {
+      // Matches that one homography explains (a plane, or no parallax) leave F undetermined
+      // (any epipole fits), and a rectification from it would be garbage off that plane. Scenes
+      // with relief stay well below: 0.3-0.6 on the synthetic surfaces of the tests, pooled
+      // frames of different scenes lower still.
+      constexpr double kMaxHomographyShare = 0.9;
+      const double share = detail::homographyShare(inl, params.ransac_threshold_px);
+      if (share > kMaxHomographyShare) {
+        std::ostringstream m;
+        m << int(std::lround(100 * share)) << "% of the " << inl.size()
+          << " matches fit one homography (a nearly planar scene or no parallax), so the "
+             "epipolar geometry is ambiguous; more frames of a moving scene are needed";
+        *why = m.str();
+        return false;
+      }
     }
     cv::Vec3d el, er;
     detail::epipoles(F_new, &el, &er);
@@ -753,8 +773,8 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
                                    left_rect_bgr, error);
         break;
     }
-  } catch (const cv::Exception& ex) {
-    ok = fail(error, std::string("rectify: OpenCV error: ") + ex.what());
+  } catch (const std::exception& ex) {
+    ok = fail(error, std::string("rectify: ") + ex.what());
   }
   ++s.frame_index;
   return ok;

@@ -1,6 +1,7 @@
 #include "endo_stereo/core/stereo_geometry.hpp"
 
 #include <cmath>
+#include <cstdint>
 #include <limits>
 #include <sstream>
 
@@ -27,6 +28,9 @@ bool equalValues(const cv::Matx<double, R, C>& a, const cv::Matx<double, R, C>& 
 
 int effectiveBinning(int b) { return b <= 0 ? 1 : b; }
 
+/// Larger images are refused (a corrupt file must not make the rectifier allocate gigabytes).
+constexpr int kMaxImageSidePx = 32768;
+
 }  // namespace
 
 std::string CameraCalibration::validate(const std::string& name) const {
@@ -36,8 +40,13 @@ std::string CameraCalibration::validate(const std::string& name) const {
         << width << "x" << height;
     return msg.str();
   }
-  if (binning_x < 0 || binning_y < 0) {
-    msg << name << ".binning_x/binning_y: must be >= 0, got " << binning_x << ", " << binning_y;
+  if (width > kMaxImageSidePx || height > kMaxImageSidePx) {
+    msg << name << ".width/height: must be <= " << kMaxImageSidePx << ", got " << width << "x"
+        << height;
+    return msg.str();
+  }
+  if (binning_x < 0 || binning_y < 0 || binning_x > 64 || binning_y > 64) {
+    msg << name << ".binning_x/binning_y: must be in [0, 64], got " << binning_x << ", " << binning_y;
     return msg.str();
   }
   if (!allFinite(K)) return name + ".K: contains NaN or infinity";
@@ -98,10 +107,13 @@ std::string CameraCalibration::validate(const std::string& name) const {
       if (P.val[i] != 0.0) return name + ".P: fx is 0 but other entries are not (not given?)";
     }
   }
-  if (roi.x < 0 || roi.y < 0 || roi.width < 0 || roi.height < 0) {
-    return name + ".roi: offsets and sizes must be >= 0";
+  if (roi.x < 0 || roi.y < 0 || roi.width < 0 || roi.height < 0 || roi.x > kMaxImageSidePx ||
+      roi.y > kMaxImageSidePx || roi.width > kMaxImageSidePx || roi.height > kMaxImageSidePx) {
+    return name + ".roi: offsets and sizes must be in [0, " + std::to_string(kMaxImageSidePx) + "]";
   }
-  if (width > 0 && (roi.x + roi.width > width + 1 || roi.y + roi.height > height + 1)) {
+  // One row/column of slack: an odd field's ROI (preprocess.hpp) may end one row past the image.
+  if (width > 0 && (int64_t(roi.x) + roi.width > int64_t(width) + 1 ||
+                    int64_t(roi.y) + roi.height > int64_t(height) + 1)) {
     msg << name << ".roi: " << roi << " exceeds the image " << width << "x" << height;
     return msg.str();
   }

@@ -140,7 +140,7 @@ bool robustFundamental(const Matches& m, double threshold_px, double confidence,
   cv::Mat f;
   try {
     f = cv::findFundamentalMat(pl, pr, cv::USAC_ACCURATE, threshold_px, confidence, 10000, mask);
-  } catch (const cv::Exception&) {
+  } catch (const std::exception&) {
     return false;
   }
   if (f.rows != 3 || f.cols != 3) return false;
@@ -155,6 +155,19 @@ bool robustFundamental(const Matches& m, double threshold_px, double confidence,
     inliers->right.push_back(m.right[i]);
   }
   return inliers->size() >= 8;
+}
+
+double homographyShare(const Matches& m, double threshold_px) {
+  if (m.size() < 4) return 1.0;
+  std::vector<cv::Point2f> pl(m.left.begin(), m.left.end()), pr(m.right.begin(), m.right.end());
+  std::vector<uchar> mask;
+  try {
+    const cv::Mat H = cv::findHomography(pl, pr, cv::RANSAC, threshold_px, mask, 2000, 0.999);
+    if (H.empty()) return 0.0;
+  } catch (const std::exception&) {
+    return 0.0;
+  }
+  return double(cv::countNonZero(mask)) / double(m.size());
 }
 
 void epipoles(const cv::Matx33d& F, cv::Vec3d* e_left, cv::Vec3d* e_right) {

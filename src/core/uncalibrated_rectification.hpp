@@ -31,6 +31,10 @@ void siftMatches(const cv::Mat& left, const cv::Mat& right, int max_features, do
 bool robustFundamental(const Matches& m, double threshold_px, double confidence, cv::Matx33d* F,
                        Matches* inliers);
 
+/// Share of the matches (0..1) that one homography explains within @p threshold_px (RANSAC):
+/// close to 1 when the scene is a plane or the views do not move, and F is then ambiguous.
+double homographyShare(const Matches& m, double threshold_px);
+
 /// Null vectors of F: F e_left = 0, F^T e_right = 0 (homogeneous, unit norm).
 void epipoles(const cv::Matx33d& F, cv::Vec3d* e_left, cv::Vec3d* e_right);
 

@@ -6,10 +6,10 @@
 // method output within the nonocc mask; density = output pixels / ground-truth pixels there.
 // Timings are medians of repeated runs, methods interleaved within each repetition so that a
 // change of machine load affects all of them alike.
+#include <spawn.h>
 #include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
-#include <spawn.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -24,15 +24,14 @@
 #include <limits>
 #include <map>
 #include <memory>
-#include <string>
-#include <vector>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <opencv2/stereo/quasi_dense_stereo.hpp>
+#include <string>
+#include <vector>
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/image_io.hpp"
@@ -54,7 +53,7 @@ constexpr float kNaN = std::numeric_limits<float>::quiet_NaN();
 const char* kUsage = R"(endo_stereo_bench - score and time endo_stereo against OpenCV's matchers
 
 Usage: endo_stereo_bench [options]
-  --root DIR        repository root (presets in DIR/config; default: the source tree it was built from)
+  --root DIR        repository root (presets in DIR/config; default: the source tree built from)
   --data DIR        Middlebury scenes (default: ROOT/../shared/data/middlebury)
   --repeats N       timed repetitions per method and scene, median reported (default 5)
   --json FILE       machine-readable results (default: ROOT/docs/benchmark_results.json)
@@ -353,8 +352,9 @@ std::vector<Row> runScene(const Scene& s, std::vector<Method>& methods, int repe
 }
 
 void printRows(const std::vector<Row>& rows) {
-  std::printf("| scene | method | bad1 %% | bad2 %% | density %% | bad2 near edges %% | "
-              "median ms | time / SGBM |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
+  std::printf(
+      "| scene | method | bad1 %% | bad2 %% | density %% | bad2 near edges %% | "
+      "median ms | time / SGBM |\n|---|---|---:|---:|---:|---:|---:|---:|\n");
   for (const Row& r : rows) {
     std::printf("| %s | %s | %.2f | %.2f | %.1f | %.2f | %.1f | %.2f |\n", r.scene.c_str(),
                 r.method.c_str(), 100 * r.nonocc.bad1, 100 * r.nonocc.bad2, 100 * r.nonocc.density,
@@ -421,7 +421,8 @@ int rssProbe(int argc, char** argv) {
     range.lo = rounded - 4;
     range.hi = rounded + 4;
   }
-  for (int i = 0; i < 3; ++i) matcher.compute(left, right, result, range.empty() ? nullptr : &range);
+  for (int i = 0; i < 3; ++i)
+    matcher.compute(left, right, result, range.empty() ? nullptr : &range);
   return 0;
 }
 
@@ -510,10 +511,11 @@ int main(int argc, char** argv) {
   std::time_t now = std::time(nullptr);
   char date[64];
   std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M %Z", std::localtime(&now));
-  std::printf("# endo_stereo benchmark\n\nmachine: %s, %u logical CPUs, OpenCV %s with %d threads; "
-              "%s; %d repetitions per timing (median)\n\n",
-              cpuModel().c_str(), std::max(1u, static_cast<unsigned>(sysconf(_SC_NPROCESSORS_ONLN))),
-              CV_VERSION, hw_threads, date, o.repeats);
+  std::printf(
+      "# endo_stereo benchmark\n\nmachine: %s, %u logical CPUs, OpenCV %s with %d threads; "
+      "%s; %d repetitions per timing (median)\n\n",
+      cpuModel().c_str(), std::max(1u, static_cast<unsigned>(sysconf(_SC_NPROCESSORS_ONLN))),
+      CV_VERSION, hw_threads, date, o.repeats);
 
   std::string note_default, note_paper;
   const endo_stereo::PipelineParams preset_default = loadPreset(o.root, "default", &note_default);
@@ -533,9 +535,10 @@ int main(int argc, char** argv) {
   std::vector<Scene> scenes;
   bool have_middlebury = false;
   if (!dirExists(o.data)) {
-    std::printf("SKIP Middlebury: data not found at %s (expected ../shared/data/middlebury "
-                "beside the repository); scoring synthetic scenes only\n\n",
-                o.data.c_str());
+    std::printf(
+        "SKIP Middlebury: data not found at %s (expected ../shared/data/middlebury "
+        "beside the repository); scoring synthetic scenes only\n\n",
+        o.data.c_str());
   } else {
     for (const char* name : {"tsukuba", "venus", "teddy"}) {
       try {
@@ -603,8 +606,9 @@ int main(int argc, char** argv) {
   }
   const int timing_repeats = std::max(o.repeats, o.quick ? 1 : 7);
   const std::vector<Row> timing_rows = runScene(big, timing, timing_repeats);
-  std::printf("| method | median ms | min ms | time / SGBM | bad2 %% | density %% |\n"
-              "|---|---:|---:|---:|---:|---:|\n");
+  std::printf(
+      "| method | median ms | min ms | time / SGBM | bad2 %% | density %% |\n"
+      "|---|---:|---:|---:|---:|---:|\n");
   for (const Row& r : timing_rows) {
     std::printf("| %s | %.1f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(), r.median_ms,
                 *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
@@ -629,9 +633,10 @@ int main(int argc, char** argv) {
       const double rss_prior =
           probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "prior", d + "/gt.pfm"});
       const double rss_sgbm = probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
-      std::printf("\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
-                  "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB\n",
-                  big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm);
+      std::printf(
+          "\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
+          "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB\n",
+          big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm);
       j.key("peak_rss_mib").beginObject();
       j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
       j.key("sgbm").value(rss_sgbm);
@@ -653,11 +658,11 @@ int main(int argc, char** argv) {
   const size_t sweep_scenes = have_middlebury ? num_middlebury : scenes.size();
   std::ofstream csv(o.curve);
   csv << "method,knob,value,scene,bad1,bad2,density,n_out,n_gt\n";
-  std::printf("| method | knob | value | bad2 %% | bad1 %% | density %% |\n"
-              "|---|---|---:|---:|---:|---:|\n");
+  std::printf(
+      "| method | knob | value | bad2 %% | bad1 %% | density %% |\n"
+      "|---|---|---:|---:|---:|---:|\n");
   j.key("sweep").beginArray();
-  auto sweep = [&](const std::string& method, const std::string& knob, double value,
-                   Method m) {
+  auto sweep = [&](const std::string& method, const std::string& knob, double value, Method m) {
     int64_t out = 0, gt = 0, bad1 = 0, bad2 = 0;
     for (size_t i = 0; i < sweep_scenes; ++i) {
       const Scene& s = scenes[i];

@@ -5,6 +5,8 @@
 // Exit status: 0 success; 1 an input could not be read or processed (unreadable file, size
 // mismatch, rectification failure, unwritable output); 2 bad usage (unknown flag, bad value,
 // bad parameters or disparity range).
+#include <sys/stat.h>
+
 #include <algorithm>
 #include <cerrno>
 #include <cmath>
@@ -12,15 +14,12 @@
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
-#include <regex>
-#include <string>
-#include <vector>
-
-#include <sys/stat.h>
-
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
+#include <regex>
+#include <string>
+#include <vector>
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/image_io.hpp"
@@ -119,7 +118,8 @@ bool parseInt(const std::string& text, int* out) {
   char* end = nullptr;
   errno = 0;
   const long v = std::strtol(text.c_str(), &end, 10);
-  if (text.empty() || *end != '\0' || errno == ERANGE || v < INT32_MIN || v > INT32_MAX) return false;
+  if (text.empty() || *end != '\0' || errno == ERANGE || v < INT32_MIN || v > INT32_MAX)
+    return false;
   *out = static_cast<int>(v);
   return true;
 }
@@ -269,7 +269,8 @@ bool fileExists(const std::string& path) {
   return ::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode);
 }
 
-std::string withSuffix(const std::string& prefix, const std::string& side, bool sequence, int index) {
+std::string withSuffix(const std::string& prefix, const std::string& side, bool sequence,
+                       int index) {
   if (!sequence) return prefix + "_" + side + ".png";
   char num[16];
   std::snprintf(num, sizeof(num), "%06d", index);
@@ -281,7 +282,8 @@ std::string lowerExtension(const std::string& path) {
   const size_t slash = path.find_last_of('/');
   if (dot == std::string::npos || (slash != std::string::npos && dot < slash)) return "";
   std::string ext = path.substr(dot + 1);
-  std::transform(ext.begin(), ext.end(), ext.begin(), [](unsigned char c) { return std::tolower(c); });
+  std::transform(ext.begin(), ext.end(), ext.begin(),
+                 [](unsigned char c) { return std::tolower(c); });
   return ext;
 }
 
@@ -307,10 +309,18 @@ bool readImage(const std::string& path, cv::Mat& image, std::string& encoding, s
     return false;
   }
   switch (image.type()) {
-    case CV_8UC1: encoding = "mono8"; break;
-    case CV_16UC1: encoding = "mono16"; break;
-    case CV_8UC3: encoding = "bgr8"; break;
-    case CV_8UC4: encoding = "bgra8"; break;
+    case CV_8UC1:
+      encoding = "mono8";
+      break;
+    case CV_16UC1:
+      encoding = "mono16";
+      break;
+    case CV_8UC3:
+      encoding = "bgr8";
+      break;
+    case CV_8UC4:
+      encoding = "bgra8";
+      break;
     default:
       *error = "image '" + path + "': unsupported channel count " + std::to_string(channels);
       return false;
@@ -358,7 +368,8 @@ double median(std::vector<double> v) {
 
 void writeRejections(JsonWriter& j, const endo_stereo::MatchStats& s) {
   j.beginObject();
-  for (int c = 0; c < endo_stereo::kNumRejectCodes; ++c) j.key(kRejectNames[c]).value(s.rejected[c]);
+  for (int c = 0; c < endo_stereo::kNumRejectCodes; ++c)
+    j.key(kRejectNames[c]).value(s.rejected[c]);
   j.endObject();
 }
 
@@ -398,7 +409,8 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
   j.key("total_pixels").value(sums.total_pixels);
   if (sequence) {
     // Steady state: the first frame searches the full range whatever the priors.
-    std::vector<double> steady(total_ms.begin() + std::min<size_t>(1, total_ms.size()), total_ms.end());
+    std::vector<double> steady(total_ms.begin() + std::min<size_t>(1, total_ms.size()),
+                               total_ms.end());
     j.key("ms_per_frame_median_after_first").value(median(steady));
     j.key("prior_narrowed_pixels").value(narrowed);
     j.key("prior_hits").value(hits);
@@ -538,7 +550,8 @@ int run(int argc, char** argv) {
   if (!o.out_cloud.empty()) params.output.point_cloud = true;
   if (o.list_params) {
     for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(params)) {
-      std::cout << info.key << " = " << info.value << "  (" << endo_stereo::paramTypeName(info.type);
+      std::cout << info.key << " = " << info.value << "  ("
+                << endo_stereo::paramTypeName(info.type);
       if (!info.choices.empty()) {
         std::cout << ":";
         for (const auto& c : info.choices) std::cout << " " << c;
@@ -635,9 +648,9 @@ int run(int argc, char** argv) {
       return kExitInput;
     }
     if (input.left.size() != input.right.size()) {
-      std::cerr << "endo_stereo_cli: size mismatch: '" << left_path << "' is "
-                << input.left.cols << "x" << input.left.rows << ", '" << right_path << "' is "
-                << input.right.cols << "x" << input.right.rows << "\n";
+      std::cerr << "endo_stereo_cli: size mismatch: '" << left_path << "' is " << input.left.cols
+                << "x" << input.left.rows << ", '" << right_path << "' is " << input.right.cols
+                << "x" << input.right.rows << "\n";
       return kExitInput;
     }
     input.stamp_s = sequence ? index / o.fps : 0.0;
@@ -675,7 +688,9 @@ int run(int argc, char** argv) {
     }
 
     // Outputs of this frame.
-    auto name = [&](const std::string& path) { return sequence ? formatPattern(path, index) : path; };
+    auto name = [&](const std::string& path) {
+      return sequence ? formatPattern(path, index) : path;
+    };
     if (!o.out_disparity.empty() &&
         !endo_stereo::writePfm(name(o.out_disparity), out.match.disparity, &err)) {
       std::cerr << "endo_stereo_cli: " << err << "\n";
@@ -690,18 +705,19 @@ int run(int argc, char** argv) {
     }
     if (!o.out_fused.empty()) {
       const std::string path = name(o.out_fused);
-      const bool ok = lowerExtension(path) == "pfm"
-                          ? endo_stereo::writePfm(path, out.fused_disparity, &err)
-                          : writeImage(path,
-                                       endo_stereo::colorizeDisparity(out.fused_disparity, d_lo, d_hi),
-                                       &err);
+      const bool ok =
+          lowerExtension(path) == "pfm"
+              ? endo_stereo::writePfm(path, out.fused_disparity, &err)
+              : writeImage(path, endo_stereo::colorizeDisparity(out.fused_disparity, d_lo, d_hi),
+                           &err);
       if (!ok) {
         std::cerr << "endo_stereo_cli: " << err << "\n";
         return kExitInput;
       }
     }
     if (!o.out_rectified.empty()) {
-      if (!writeImage(withSuffix(o.out_rectified, "left", sequence, index), out.left_rect_gray, &err) ||
+      if (!writeImage(withSuffix(o.out_rectified, "left", sequence, index), out.left_rect_gray,
+                      &err) ||
           !writeImage(withSuffix(o.out_rectified, "right", sequence, index), out.right_rect_gray,
                       &err)) {
         std::cerr << "endo_stereo_cli: " << err << "\n";

@@ -26,10 +26,22 @@ namespace tools {
 
 class JsonWriter {
  public:
-  JsonWriter& beginObject() { open('{'); return *this; }
-  JsonWriter& endObject() { close('}'); return *this; }
-  JsonWriter& beginArray() { open('['); return *this; }
-  JsonWriter& endArray() { close(']'); return *this; }
+  JsonWriter& beginObject() {
+    open('{');
+    return *this;
+  }
+  JsonWriter& endObject() {
+    close('}');
+    return *this;
+  }
+  JsonWriter& beginArray() {
+    open('[');
+    return *this;
+  }
+  JsonWriter& endArray() {
+    close(']');
+    return *this;
+  }
 
   /// Name the next value inside an object.
   JsonWriter& key(const std::string& name) {
@@ -41,12 +53,32 @@ class JsonWriter {
     return *this;
   }
 
-  JsonWriter& value(const std::string& v) { prefix(); writeString(v); return *this; }
+  JsonWriter& value(const std::string& v) {
+    prefix();
+    writeString(v);
+    return *this;
+  }
   JsonWriter& value(const char* v) { return value(std::string(v)); }
-  JsonWriter& value(bool v) { prefix(); out_ << (v ? "true" : "false"); return *this; }
-  JsonWriter& value(int v) { prefix(); out_ << v; return *this; }
-  JsonWriter& value(int64_t v) { prefix(); out_ << v; return *this; }
-  JsonWriter& value(uint64_t v) { prefix(); out_ << v; return *this; }
+  JsonWriter& value(bool v) {
+    prefix();
+    out_ << (v ? "true" : "false");
+    return *this;
+  }
+  JsonWriter& value(int v) {
+    prefix();
+    out_ << v;
+    return *this;
+  }
+  JsonWriter& value(int64_t v) {
+    prefix();
+    out_ << v;
+    return *this;
+  }
+  JsonWriter& value(uint64_t v) {
+    prefix();
+    out_ << v;
+    return *this;
+  }
   /// Non-finite numbers have no JSON form: written as null.
   JsonWriter& value(double v) {
     prefix();
@@ -59,7 +91,11 @@ class JsonWriter {
     }
     return *this;
   }
-  JsonWriter& null() { prefix(); out_ << "null"; return *this; }
+  JsonWriter& null() {
+    prefix();
+    out_ << "null";
+    return *this;
+  }
 
   std::string str() const { return out_.str() + "\n"; }
 
@@ -99,11 +135,21 @@ class JsonWriter {
     out_ << '"';
     for (unsigned char c : s) {
       switch (c) {
-        case '"': out_ << "\\\""; break;
-        case '\\': out_ << "\\\\"; break;
-        case '\n': out_ << "\\n"; break;
-        case '\t': out_ << "\\t"; break;
-        case '\r': out_ << "\\r"; break;
+        case '"':
+          out_ << "\\\"";
+          break;
+        case '\\':
+          out_ << "\\\\";
+          break;
+        case '\n':
+          out_ << "\\n";
+          break;
+        case '\t':
+          out_ << "\\t";
+          break;
+        case '\r':
+          out_ << "\\r";
+          break;
         default:
           if (c < 0x20) {
             char buf[8];

@@ -15,6 +15,7 @@
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -43,6 +44,7 @@ Options:
   --width W --height H  image size (default 960 x 540)
   --seed S            scene seed (default 1)
   --noise SIGMA       sensor noise, grey levels (default 1.5)
+  --instrument-speed X  instrument speed factor (default 1)
   --params FILE.yaml  pipeline preset (matcher, filter, temporal sections are used)
   --set KEY=VALUE     override one parameter (repeatable), e.g. --set temporal.prior_radius_px=3
   --refresh K         temporal.refresh_period_frames (until the params loader knows the key)
@@ -50,6 +52,7 @@ Options:
   --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
                       SGBM's MODE_SGBM runs on one thread whatever this says.
   --no-sgbm           skip the SGBM baseline
+  --no-baseline       skip our matcher without priors
   --out DIR           write coverage.png, fused.png (input | this frame | fused) and
                       results.json there (default: no files)
   --picture-frame N   frame shown in fused.png (default: the last)
@@ -118,7 +121,7 @@ int main(int argc, char** argv) {
   endo_stereo::SurgicalSceneParams sp;
   endo_stereo::PipelineParams pp;
   int frames = 100, warmup = 5, threads = 1, picture_frame = -1, refresh = -1, edge_zone = -1;
-  bool run_sgbm = true;
+  bool run_sgbm = true, run_without = true;
   std::string out_dir;
   std::vector<std::string> overrides;
   std::string params_file;
@@ -144,6 +147,8 @@ int main(int argc, char** argv) {
       sp.height = std::atoi(next().c_str());
     } else if (a == "--seed") {
       sp.seed = uint64_t(std::atoll(next().c_str()));
+    } else if (a == "--instrument-speed") {
+      sp.instrument_speed = std::atof(next().c_str());
     } else if (a == "--noise") {
       sp.noise_sigma = std::atof(next().c_str());
     } else if (a == "--params") {
@@ -156,6 +161,8 @@ int main(int argc, char** argv) {
       refresh = std::atoi(next().c_str());
     } else if (a == "--threads") {
       threads = std::atoi(next().c_str());
+    } else if (a == "--no-baseline") {
+      run_without = false;
     } else if (a == "--no-sgbm") {
       run_sgbm = false;
     } else if (a == "--out") {
@@ -238,11 +245,16 @@ int main(int argc, char** argv) {
     tracker_with.endFrame(res_with.disparity, true, true);
     const double ms_with = msSince(t0);
     // 2. without priors
-    t0 = std::chrono::steady_clock::now();
-    tracker_without.beginFrame(info);
-    matcher_without.compute(l, r, res_without, nullptr);
-    tracker_without.endFrame(res_without.disparity, false, true);
-    const double ms_without = msSince(t0);
+    double ms_without = 0;
+    if (run_without) {
+      t0 = std::chrono::steady_clock::now();
+      tracker_without.beginFrame(info);
+      matcher_without.compute(l, r, res_without, nullptr);
+      tracker_without.endFrame(res_without.disparity, false, true);
+      ms_without = msSince(t0);
+    } else {
+      res_without.disparity = cv::Mat(l.size(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+    }
     // 3. SGBM
     double ms_sgbm = 0;
     cv::Mat d_sgbm;
@@ -320,7 +332,7 @@ int main(int argc, char** argv) {
   const endo_stereo::CoverageStats cov_with = tracker_with.coverage().stats();
   const endo_stereo::CoverageStats cov_without = tracker_without.coverage().stats();
 
-  char buf[4096];
+  char buf[8192];
   std::snprintf(buf, sizeof(buf),
                 "{\n"
                 "  \"frames\": %d, \"warmup\": %d, \"width\": %d, \"height\": %d, \"seed\": %llu,\n"
@@ -332,6 +344,8 @@ int main(int argc, char** argv) {
                 "  \"bad2_with_priors\": %.5f, \"density_with_priors\": %.4f,\n"
                 "  \"bad2_without_priors\": %.5f, \"density_without_priors\": %.4f,\n"
                 "  \"bad2_with_priors_narrowed_pixels\": %.5f, \"bad2_with_priors_full_range_pixels\": %.5f,\n"
+                "  \"bad_pixels_with_priors\": %lld, \"output_pixels_with_priors\": %lld,\n"
+                "  \"bad_pixels_without_priors\": %lld, \"output_pixels_without_priors\": %lld,\n"
                 "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
                 "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
                 "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
@@ -343,7 +357,8 @@ int main(int argc, char** argv) {
                 pp.matcher.max_disparity, threads, t_with.mean(), t_with.median(), t_without.mean(),
                 t_without.median(), t_sgbm.mean(), t_sgbm.median(),
                 t_sgbm.mean() > 0 ? t_with.mean() / t_sgbm.mean() : 0.0, s_with.bad2(), s_with.density(),
-                s_without.bad2(), s_without.density(), s_with_narrowed.bad2(), s_with_full.bad2(), s_fused.bad2(), s_fused.density(), s_sgbm.bad2(),
+                s_without.bad2(), s_without.density(), s_with_narrowed.bad2(), s_with_full.bad2(), (long long)s_with.bad, (long long)s_with.output,
+                (long long)s_without.bad, (long long)s_without.output, s_fused.bad2(), s_fused.density(), s_sgbm.bad2(),
                 s_sgbm.density(), searched ? double(narrowed) / searched : 0.0,
                 narrowed ? double(hits) / narrowed : 0.0, searched ? double(fallbacks) / searched : 0.0,
                 width_frames ? width_sum / width_frames : 0.0, cov_with.central_share, cov_with.overall_share,

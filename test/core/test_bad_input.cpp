@@ -432,6 +432,24 @@ TEST(FuzzOpenCvStereo, FileWithoutDistortionLoads) {
   EXPECT_TRUE(calib.right.D.empty());
 }
 
+// Found by fuzz_opencv_stereo: an empty key inside a matrix block makes OpenCV 4.6's YAML parser
+// throw std::length_error (not cv::Exception), which escaped the loader (documented to return
+// false with a message) and would terminate the command-line tools.
+TEST(FuzzOpenCvStereo, EmptyKeyIsAnErrorNotAnException) {
+  const std::string path = "/tmp/test_bad_input_key_" + std::to_string(::getpid()) + ".yaml";
+  {
+    std::ofstream os(path);
+    os << "%YAML:1.0\n---\nM1: !!opencv-matrix\n   rows: 3\n   : [ 1. ]\n";
+  }
+  StereoCalibration calib;
+  std::string error;
+  bool ok = true;
+  EXPECT_NO_THROW(ok = loadOpenCvStereoYaml(path, calib, &error));
+  ::unlink(path.c_str());
+  EXPECT_FALSE(ok);
+  EXPECT_NE(error.find(path), std::string::npos) << "message does not name the file: " << error;
+}
+
 // --- Time -------------------------------------------------------------------------------------------
 
 TEST(BadTime, TimeGoingBackResetsTheTemporalState) {

@@ -1,7 +1,6 @@
 // endo_stereo_cli end to end: image files in, PFM / PNG / JSON / PLY out, and the error exits.
 // Runs the built binary (ES_CLI_PATH) in a temporary folder.
 #include <gtest/gtest.h>
-
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -10,12 +9,11 @@
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
+#include <opencv2/core.hpp>
+#include <opencv2/imgcodecs.hpp>
 #include <regex>
 #include <sstream>
 #include <string>
-
-#include <opencv2/core.hpp>
-#include <opencv2/imgcodecs.hpp>
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/image_io.hpp"
@@ -102,8 +100,9 @@ std::string CliTest::dir_;
 SyntheticScene CliTest::scene_;
 
 TEST_F(CliTest, WritesPfmColourAndStatsThatAgreeWithEachOther) {
-  const RunResult r = run("--left left.png --right right.png --min-disparity 0 --max-disparity 31 "
-                          "--out-disparity d.pfm --out-color d.png --stats s.json");
+  const RunResult r =
+      run("--left left.png --right right.png --min-disparity 0 --max-disparity 31 "
+          "--out-disparity d.pfm --out-color d.png --stats s.json");
   ASSERT_EQ(r.status, 0) << r.err;
   std::string error;
   const cv::Mat d = readPfm(dir_ + "/d.pfm", &error);
@@ -146,8 +145,9 @@ TEST_F(CliTest, WritesPfmColourAndStatsThatAgreeWithEachOther) {
 
 TEST_F(CliTest, ParamsFileThenOverridesThenFlagsApplyInOrder) {
   std::ofstream(dir_ + "/preset.yaml") << "matcher:\n  delta_min: 0.3\n  window_max_px: 15\n";
-  const RunResult r = run("--left left.png --right right.png --params preset.yaml "
-                          "--set matcher.delta_min=0.25 --max-disparity 40 --stats p.json");
+  const RunResult r =
+      run("--left left.png --right right.png --params preset.yaml "
+          "--set matcher.delta_min=0.25 --max-disparity 40 --stats p.json");
   ASSERT_EQ(r.status, 0) << r.err;
   const std::string json = readText(dir_ + "/p.json");
   EXPECT_NE(json.find("\"matcher.delta_min\": \"0.25\""), std::string::npos);
@@ -156,9 +156,10 @@ TEST_F(CliTest, ParamsFileThenOverridesThenFlagsApplyInOrder) {
 }
 
 TEST_F(CliTest, SequenceModeWritesEachFrameAndUsesPriorsUnlessTold) {
-  RunResult r = run("--left seq_l_%03d.png --right seq_r_%03d.png --max-disparity 31 "
-                    "--out-disparity sd_%03d.pfm --out-fused sf_%03d.pfm "
-                    "--out-coverage cov.png --stats seq.json");
+  RunResult r =
+      run("--left seq_l_%03d.png --right seq_r_%03d.png --max-disparity 31 "
+          "--out-disparity sd_%03d.pfm --out-fused sf_%03d.pfm "
+          "--out-coverage cov.png --stats seq.json");
   ASSERT_EQ(r.status, 0) << r.err;
   for (const char* f : {"sd_001.pfm", "sd_002.pfm", "sd_003.pfm", "sf_003.pfm", "cov.png"}) {
     EXPECT_TRUE(exists(f)) << f;
@@ -171,7 +172,8 @@ TEST_F(CliTest, SequenceModeWritesEachFrameAndUsesPriorsUnlessTold) {
   EXPECT_GT(jsonNumber(json, "prior_hits"), 0);
   EXPECT_NE(json.find("\"central_share_updated_within\""), std::string::npos);
 
-  r = run("--left seq_l_%03d.png --right seq_r_%03d.png --max-disparity 31 --first 2 --count 2 "
+  r =
+      run("--left seq_l_%03d.png --right seq_r_%03d.png --max-disparity 31 --first 2 --count 2 "
           "--no-priors --stats seq2.json");
   ASSERT_EQ(r.status, 0) << r.err;
   json = readText(dir_ + "/seq2.json");
@@ -244,11 +246,12 @@ TEST_F(CliTest, HelpAndParameterListAreAvailable) {
   char buf[512];
   while (size_t n = std::fread(buf, 1, sizeof(buf), pipe)) help.append(buf, n);
   ::pclose(pipe);
-  for (const char* flag : {"--left", "--right", "--params", "--set", "--min-disparity",
-                           "--max-disparity", "--out-disparity", "--out-color", "--stats",
-                           "--calib", "--uncalibrated", "--focal", "--baseline", "--downsample",
-                           "--out-rectified", "--out-cloud", "--no-priors", "--out-fused",
-                           "--out-coverage", "--threads", "--first", "--count"}) {
+  for (const char* flag :
+       {"--left",          "--right",         "--params",    "--set",          "--min-disparity",
+        "--max-disparity", "--out-disparity", "--out-color", "--stats",        "--calib",
+        "--uncalibrated",  "--focal",         "--baseline",  "--downsample",   "--out-rectified",
+        "--out-cloud",     "--no-priors",     "--out-fused", "--out-coverage", "--threads",
+        "--first",         "--count"}) {
     EXPECT_NE(help.find(flag), std::string::npos) << flag;
   }
   r = run("--list-params");
@@ -311,6 +314,39 @@ TEST_F(CliTest, CalibratedPairGivesRectifiedImagesAndAMetricCloud) {
   r = run("--left raw_l.png --right raw_r.png --calib missing_l.yaml,cam_r.yaml");
   EXPECT_EQ(r.status, 1);
   EXPECT_NE(r.err.find("missing_l.yaml"), std::string::npos) << r.err;
+}
+
+// Uncalibrated, as in the paper: the rectification is estimated from the images and its quality
+// reported; a pair without texture is refused instead of producing garbage.
+TEST_F(CliTest, UncalibratedModeEstimatesTheRectificationOrRefusesClearly) {
+  SurgicalSceneParams sp;
+  sp.width = 320;
+  sp.height = 240;
+  sp.seed = 6;
+  sp.instruments = 0;
+  const SurgicalScene scene(sp);
+  SurgicalFrame f;
+  scene.render(0, f);
+  ASSERT_TRUE(cv::imwrite(dir_ + "/un_l.png", f.left));
+  ASSERT_TRUE(cv::imwrite(dir_ + "/un_r.png", f.right));
+  int d_min = 0, d_max = 0;
+  scene.suggestedDisparityRange(&d_min, &d_max);
+  RunResult r =
+      run("--left un_l.png --right un_r.png --uncalibrated --focal 300 --baseline 0.0045"
+          " --min-disparity " +
+          std::to_string(d_min - 16) + " --max-disparity " + std::to_string(d_max + 16) +
+          " --stats un.json");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::string json = readText(dir_ + "/un.json");
+  EXPECT_NE(json.find("\"measured\": true"), std::string::npos) << json;
+  EXPECT_LT(jsonNumber(json, "median_offset_px"), 1.0);  // the warning threshold of issue 3
+  EXPECT_GT(jsonNumber(json, "density"), 0.2);
+
+  cv::imwrite(dir_ + "/flat_l.png", cv::Mat(120, 160, CV_8UC1, cv::Scalar(128)));
+  cv::imwrite(dir_ + "/flat_r.png", cv::Mat(120, 160, CV_8UC1, cv::Scalar(128)));
+  r = run("--left flat_l.png --right flat_r.png --uncalibrated");
+  EXPECT_EQ(r.status, 1);
+  EXPECT_NE(r.err.find("could not be estimated"), std::string::npos) << r.err;
 }
 
 }  // namespace

@@ -1,5 +1,6 @@
 // PFM round trips (Middlebury convention) and the disparity colour map.
 #include <gtest/gtest.h>
+#include <unistd.h>
 
 #include <cmath>
 #include <cstdio>
@@ -7,11 +8,8 @@
 #include <cstring>
 #include <fstream>
 #include <limits>
-#include <string>
-
-#include <unistd.h>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 #include "endo_stereo/core/image_io.hpp"
 
@@ -61,8 +59,11 @@ TEST(Pfm, RoundTripIsBitExactWithNaNForInvalid) {
 
 TEST(Pfm, WritesMiddleburyLayoutBottomRowFirstAndInfForInvalid) {
   cv::Mat d(2, 3, CV_32FC1);
-  d.at<float>(0, 0) = 1.f; d.at<float>(0, 1) = 2.f; d.at<float>(0, 2) = 3.f;
-  d.at<float>(1, 0) = 4.f; d.at<float>(1, 1) = std::numeric_limits<float>::quiet_NaN();
+  d.at<float>(0, 0) = 1.f;
+  d.at<float>(0, 1) = 2.f;
+  d.at<float>(0, 2) = 3.f;
+  d.at<float>(1, 0) = 4.f;
+  d.at<float>(1, 1) = std::numeric_limits<float>::quiet_NaN();
   d.at<float>(1, 2) = 6.f;
   const std::string path = tempPath("layout.pfm");
   ASSERT_TRUE(writePfm(path, d));
@@ -151,7 +152,8 @@ TEST(Pfm, RefusesWrongTypeAndUnwritablePath) {
   EXPECT_FALSE(writePfm(tempPath("u8.pfm"), cv::Mat(2, 2, CV_8UC1, cv::Scalar(1)), &error));
   EXPECT_NE(error.find("CV_32FC1"), std::string::npos) << error;
   error.clear();
-  EXPECT_FALSE(writePfm("/nonexistent_dir_es/x.pfm", cv::Mat(2, 2, CV_32FC1, cv::Scalar(1)), &error));
+  EXPECT_FALSE(
+      writePfm("/nonexistent_dir_es/x.pfm", cv::Mat(2, 2, CV_32FC1, cv::Scalar(1)), &error));
   EXPECT_NE(error.find("cannot open"), std::string::npos) << error;
 }
 
@@ -174,10 +176,10 @@ TEST(ColorizeDisparity, PaintsInvalidBlackAndValidNeverBlack) {
 
 TEST(ColorizeDisparity, MapsRangeEndsToDifferentColoursAndClampsOutside) {
   cv::Mat d(1, 4, CV_32FC1);
-  d.at<float>(0, 0) = 10.f;   // d_min
-  d.at<float>(0, 1) = 50.f;   // d_max
-  d.at<float>(0, 2) = -100.f; // below the range: same colour as d_min
-  d.at<float>(0, 3) = 900.f;  // above: same colour as d_max
+  d.at<float>(0, 0) = 10.f;    // d_min
+  d.at<float>(0, 1) = 50.f;    // d_max
+  d.at<float>(0, 2) = -100.f;  // below the range: same colour as d_min
+  d.at<float>(0, 3) = 900.f;   // above: same colour as d_max
   const cv::Mat c = colorizeDisparity(d, 10.0, 50.0);
   EXPECT_NE(c.at<cv::Vec3b>(0, 0), c.at<cv::Vec3b>(0, 1));
   EXPECT_EQ(c.at<cv::Vec3b>(0, 0), c.at<cv::Vec3b>(0, 2));

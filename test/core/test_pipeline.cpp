@@ -3,11 +3,10 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
-#include <stdexcept>
-#include <string>
-
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
+#include <stdexcept>
+#include <string>
 
 #include "endo_stereo/core/pipeline.hpp"
 #include "surgical_scene.hpp"
@@ -128,7 +127,8 @@ TEST_F(PipelineTest, InvalidParamsAreRejectedNamingTheFieldAndTheOldOnesKept) {
   PipelineParams bad_temporal = passThroughParams();
   bad_temporal.temporal.prior_radius_px = 0;
   EXPECT_THROW(pipeline.setParams(bad_temporal), std::invalid_argument);
-  EXPECT_EQ(pipeline.params().temporal.prior_radius_px, passThroughParams().temporal.prior_radius_px);
+  EXPECT_EQ(pipeline.params().temporal.prior_radius_px,
+            passThroughParams().temporal.prior_radius_px);
   PipelineParams bad_range = passThroughParams();
   bad_range.matcher.max_disparity = -5;
   EXPECT_NE(bad_range.validate().find("matcher."), std::string::npos) << bad_range.validate();
@@ -166,6 +166,12 @@ TEST_F(PipelineTest, PriorsNarrowTheNextFrameAndResetWhenTimeGoesBackOrJumps) {
   EXPECT_TRUE(out.priors_used);
   ASSERT_TRUE(pipeline.process(monoInput(s, 60.0), out, &error)) << error;  // a long gap
   EXPECT_TRUE(out.priors_reset);
+  EXPECT_FALSE(out.priors_used);
+
+  ASSERT_TRUE(pipeline.process(monoInput(s, 60.04), out, &error)) << error;
+  EXPECT_TRUE(out.priors_used);
+  pipeline.reset();  // asked for by the caller (the nodelet on a reconfigure, for instance)
+  ASSERT_TRUE(pipeline.process(monoInput(s, 60.08), out, &error)) << error;
   EXPECT_FALSE(out.priors_used);
 }
 
@@ -279,7 +285,8 @@ TEST_F(PipelineTest, CalibratedCloudIsMetricAndANewCalibrationResetsPriors) {
       ASSERT_NEAR(p[2], z, 1e-4 * z);  // float32 xyz against the same formula in double
       ++checked;
       // 0.5 px of disparity error at these disparities is a few percent of depth.
-      if (std::abs(p[2] - frame.gt_depth_m.at<float>(y, x)) < 0.05 * frame.gt_depth_m.at<float>(y, x))
+      if (std::abs(p[2] - frame.gt_depth_m.at<float>(y, x)) <
+          0.05 * frame.gt_depth_m.at<float>(y, x))
         ++close_to_truth;
     }
   }

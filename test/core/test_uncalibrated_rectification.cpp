@@ -178,6 +178,11 @@ TEST_P(UncalibratedRigTest, AlignsRowsWithoutCalibration) {
   } else {
     cv::Matx33d hl, hr;
     EXPECT_TRUE(rect.homographies(&hl, &hr));
+    // No shear between the views: the surface spans about 21-28 px of true disparity (depth
+    // 66-94 mm); a sheared left warp (e.g. an unrotated left view against a rolled right one)
+    // would add up to sin(3 deg) * 360 = 19 px across the rows.
+    EXPECT_LT(gt.d_max - gt.d_min, 10.0);
+    EXPECT_GT(gt.d_min, 0.0);  // raw disparities keep their sign
     EXPECT_FALSE(rect.geometry().metric);  // no focal / baseline given: disparity only
   }
 }
@@ -239,6 +244,25 @@ TEST_F(UncalibratedTest, TexturelessPairReportsFailureInsteadOfGarbage) {
   EXPECT_FALSE(rect.quality().estimated);
   EXPECT_EQ(rect.activeMethod(), "");
   EXPECT_TRUE(lg.empty());
+}
+
+TEST_F(UncalibratedTest, PlanarSceneIsRefusedAsAmbiguous) {
+  // A textured plane: every match fits one homography, so F (and any rectification from it) is
+  // undetermined; the rectifier must say so rather than pick an arbitrary epipole.
+  const SyntheticRig rig = namedRig("verged");
+  TexturedSurface plane = makeTexturedSurface(21);
+  plane.bump_m = 0;
+  const cv::Mat l = renderSurface(rig.left, plane), r = renderSurface(rig.right, plane);
+  RectifyParams rp;
+  rp.mode = RectifyMode::kUncalibrated;
+  rp.estimation_frames = 1;
+  StereoRectifier rect(rp);
+  cv::Mat lg, rg, lc;
+  std::string err;
+  EXPECT_FALSE(rect.rectify(l, r, cv::Mat(), lg, rg, lc, &err));
+  std::printf("[ measure  ] planar scene: %s\n", err.c_str());
+  EXPECT_NE(err.find("could not be estimated"), std::string::npos) << err;
+  EXPECT_NE(err.find("homography"), std::string::npos) << err;
 }
 
 TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {

@@ -42,9 +42,9 @@ enum class ParamType {
 
 /// One pipeline parameter.
 struct ParamInfo {
-  std::string key;                   ///< "section.field", e.g. "matcher.delta_min"
-  std::string section;               ///< "matcher", "filter", "preprocess", "rectify", "temporal", "output"
-  std::string field;                 ///< the struct field name, e.g. "delta_min"
+  std::string key;      ///< "section.field", e.g. "matcher.delta_min"
+  std::string section;  ///< "matcher", "filter", "preprocess", "rectify", "temporal", "output"
+  std::string field;    ///< the struct field name, e.g. "delta_min"
   ParamType type = ParamType::kString;
   std::string value;                 ///< current value as text (parses back to the same value)
   std::vector<std::string> choices;  ///< accepted values of an enumeration; empty otherwise
