@@ -258,10 +258,10 @@ class Rig:
     def publish_good(self, t, w=W, h=H, encoding="bgr8", baseline=BASELINE_M):
         stamp = rospy.Time.from_sec(t)
         ld, rd = self.pairs.images(w, h, encoding)
-        self.publish(make_image(stamp, "left_optical", w, h, encoding, ld),
-                     make_image(stamp, "right_optical", w, h, encoding, rd),
-                     make_info(stamp, "left_optical", w, h),
-                     make_info(stamp, "right_optical", w, h, tx=-F_PX * baseline))
+        self.publish(make_image(stamp, "stereo_optical", w, h, encoding, ld),
+                     make_image(stamp, "stereo_optical", w, h, encoding, rd),
+                     make_info(stamp, "stereo_optical", w, h),
+                     make_info(stamp, "stereo_optical", w, h, tx=-F_PX * baseline))
 
     def outputs_since(self, wall_t):
         with self.lock:
@@ -468,16 +468,16 @@ def inventory_cases(target):
     nan = float("nan")
 
     def pair_with(rig, t, w=W, h=H, lw=None, lh=None, encoding="bgr8", step=None, data=None,
-                  linfo=None, rinfo=None, left=True, right=True, rframe="right_optical"):
+                  linfo=None, rinfo=None, left=True, right=True, rframe="stereo_optical"):
         stamp = rospy.Time.from_sec(t)
         lw = w if lw is None else lw  # one size given: both images have it
         lh = h if lh is None else lh
         ld = rig.pairs.images(lw, lh)[0] if lw > 0 and lh > 0 else b""
         rd = rig.pairs.images(w, h)[1] if w > 0 and h > 0 else b""
-        li = make_image(stamp, "left_optical", lw, lh, encoding, data if data is not None else ld,
+        li = make_image(stamp, "stereo_optical", lw, lh, encoding, data if data is not None else ld,
                         step)
         ri = make_image(stamp, rframe, w, h, encoding, data if data is not None else rd, step)
-        lc = linfo if linfo is not None else make_info(stamp, "left_optical", lw, lh)
+        lc = linfo if linfo is not None else make_info(stamp, "stereo_optical", lw, lh)
         rc = rinfo if rinfo is not None else make_info(stamp, rframe, w, h, tx=-F_PX * BASELINE_M)
         lc.header.stamp = stamp
         rc.header.stamp = stamp
@@ -495,10 +495,10 @@ def inventory_cases(target):
             return t + 1.0
         return run
 
-    def info_case(k=None, tx=-F_PX * BASELINE_M, w=W, h=H, rframe="right_optical"):
+    def info_case(k=None, tx=-F_PX * BASELINE_M, w=W, h=H, rframe="stereo_optical"):
         def run(rig, t):
             stamp = rospy.Time.from_sec(t)
-            lc = make_info(stamp, "left_optical", w, h, k_override=k)
+            lc = make_info(stamp, "stereo_optical", w, h, k_override=k)
             rc = make_info(stamp, rframe, w, h, tx=tx, k_override=k)
             pair_with(rig, t, linfo=lc, rinfo=rc, rframe=rframe)
             return t + 1.0
@@ -580,13 +580,16 @@ def run_case(rig, node, t, cid, desc, fn, args):
         t += 1.0
         before = time.time()
     n_before = len(rig.outputs_since(0))
+    with rig.lock:
+        rejected_before = int(rig.diag.get("pairs rejected", 0) or 0)
+        rig.diag = {}
     next_t = fn(rig, t)
     time.sleep(args.settle_s)
     bad_outputs = len(rig.outputs_since(0)) - n_before
     alive = node.alive()
     death = None if alive else node.exit_description()
     death_msg = [] if alive else node.last_log_lines(
-        2, pattern=["Assertion", "terminate", "what()", "error", "Error", "abort"])
+        2, pattern=["Assertion", "terminate called", "what()", "Segmentation", "Aborted"])
     recovered = False
     if alive:
         rig.publish_good(next_t)
@@ -595,12 +598,17 @@ def run_case(rig, node, t, cid, desc, fn, args):
             rig.publish_good(next_t + 0.04)
             recovered = rig.wait_output(next_t + 0.04, args.frame_timeout_s)
     logs = rig.logs_since(before)
-    row = {"id": cid, "input": desc, "alive": alive, "death": death,
+    # Throttled log messages may be suppressed within a case; the diagnostics' "last error"
+    # (endo_stereo) says what was refused.
+    last_error = None
+    if alive and int(rig.diag.get("pairs rejected", 0) or 0) > rejected_before:
+        last_error = rig.diag.get("last error")
+    row = {"id": cid, "input": desc, "alive": alive, "death": death, "last_error": last_error,
            "death_message": death_msg, "outputs_for_bad_input": bad_outputs,
            "next_good_pair_processed": recovered,
            "log": logs[:2]}
-    print("[driver] %-18s alive=%s recovered=%s outputs=%d log=%s %s" % (
-        cid, alive, recovered, bad_outputs, (logs[:1] or [""])[0][:140],
+    print("[driver] %-18s alive=%s recovered=%s outputs=%d log=%s | %s %s" % (
+        cid, alive, recovered, bad_outputs, (logs[:1] or [""])[0][:110], (last_error or "")[:110],
         ("DIED: %s %s" % (death, death_msg)) if not alive else ""), flush=True)
     return row, max(next_t, t) + 1.0
 
@@ -690,6 +698,52 @@ def inventory(args, node, rig):
     return 0
 
 
+def describe(row):
+    """One table cell: what the node did with the bad input and whether it recovered."""
+    if not row["alive"]:
+        msg = " ".join(row.get("death_message") or [])
+        for key in ("what():", "Assertion"):
+            if key in msg:
+                msg = msg[msg.index(key):]
+                break
+        return "**dies** (%s): `%s`" % (row["death"], msg[:150].replace("|", "/"))
+    said = row.get("last_error") or (row.get("log") or [""])[0]
+    said = said.replace("|", "/").replace("\n", " ")
+    parts = []
+    if row["outputs_for_bad_input"]:
+        parts.append("publishes %d output(s)" % row["outputs_for_bad_input"])
+    else:
+        parts.append("no output")
+    if said:
+        parts.append("says `%s`" % said[:160])
+    else:
+        parts.append("nothing logged")
+    if "config_after" in row:
+        parts.append("config after: `%s`" % json.dumps(row["config_after"]))
+    if "points_published" in row:
+        parts.append("%d clouds" % row["points_published"])
+    parts.append("next pair processed" if row["next_good_pair_processed"]
+                 else "**next pair NOT processed**")
+    return "; ".join(parts)
+
+
+def inventory_table(paths):
+    tables = [json.load(open(p)) for p in paths]
+    by_id = [{r["id"]: r for r in t["rows"]} for t in tables]
+    ids = []
+    for t in tables:
+        for r in t["rows"]:
+            if r["id"] not in ids:
+                ids.append(r["id"])
+    out = ["| input | " + " | ".join(t["target"] for t in tables) + " |",
+           "|---" * (len(tables) + 1) + "|"]
+    for i in ids:
+        desc = next(b[i]["input"] for b in by_id if i in b)
+        cells = [describe(b[i]) if i in b else "n/a" for b in by_id]
+        out.append("| %s | %s |" % (desc, " | ".join(cells)))
+    return "\n".join(out)
+
+
 def write_result(args, result):
     if args.out:
         with open(args.out, "w") as f:
@@ -699,7 +753,8 @@ def write_result(args, result):
 def main():
     ap = argparse.ArgumentParser(description=__doc__,
                                  formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("mode", choices=["soak", "overload", "inventory"])
+    ap.add_argument("mode", choices=["soak", "overload", "inventory", "table"])
+    ap.add_argument("inputs", nargs="*", help="table: inventory JSON files (endo_stereo first)")
     ap.add_argument("--target", default="endo_stereo", choices=["endo_stereo", "stereo_image_proc"])
     ap.add_argument("--node-exe", default=None, help="endo_stereo_node executable")
     ap.add_argument("--log-dir", default="/tmp/es_reliability")
@@ -711,11 +766,14 @@ def main():
     ap.add_argument("--no-hammer", dest="hammer", action="store_false")
     ap.add_argument("--rate", type=float, default=200.0)
     ap.add_argument("--seconds", type=float, default=15.0)
-    ap.add_argument("--settle-s", type=float, default=1.0)
+    ap.add_argument("--settle-s", type=float, default=1.5)
     ap.add_argument("--diag-period-s", type=float, default=1.0)
     ap.add_argument("--param", action="append", default=[],
                     help="private parameter of the node, key=value (YAML value)")
     args = ap.parse_args()
+    if args.mode == "table":
+        print(inventory_table(args.inputs))
+        return 0
     os.makedirs(args.log_dir, exist_ok=True)
     rospy.init_node("es_reliability_driver", anonymous=True, disable_signals=True)
     import yaml

@@ -1,33 +1,43 @@
-// The robust matcher of Bernhardt, Abi-Nahed and Abugharbieh (2012), METHOD.md sections 2 and 3.
+// The robust matcher of Bernhardt, Abi-Nahed and Abugharbieh (2012), METHOD.md sections 2 and 3,
+// plus our measure against foreground fattening at depth edges.
 //
-// How the work is organised (why it is fast and exact):
+// How the work is organised (why it is fast, exact, and the same for any thread count):
 // - Intensities are stored as float (value - 128), so every product lies in [-16384, 16384] and
-//   every window sum of products of a window up to 32 x 32 stays below 2^24: the box sums are exact
-//   integers in float arithmetic. Running sums, fresh sums and any order of summation therefore give
-//   bit-identical values, so the output cannot depend on the number of threads or on where a stripe
-//   of rows starts.
-// - For one window size, rows are processed in fixed stripes (cv::parallel_for_ over stripe
-//   indices; the stripes do not depend on the thread count). Within a row the disparities are
-//   streamed in increasing order; for each disparity d the vertical window sums of
-//   L(x, y') * R(x - d, y') are kept per column from the previous row (one row of them per d) and
-//   the horizontal window sum is built by doubling (sums of 2, 4, 8, 16 neighbours), so one NCC
-//   slice costs O(width) per row whatever the window size.
-// - Nothing but the per-pixel peak state is kept: the best interior local maximum with its two
-//   neighbours (for the parabola), the highest other maximum (for the peak gap), and for every
-//   right pixel q the best disparity of its right-to-left profile S_RL(q, d) = S_LR(q + d, d), which
-//   is the left-right check without a second correlation pass.
-// - Only the pixels that failed at one window size are matched again with the next one; a row
-//   without such pixels is skipped, and within a row only the columns whose NCC values can matter
-//   (the failed pixels' profiles and the right-to-left profiles of the right pixels they may match)
-//   are computed.
+//   every window sum of products of a window up to 32 x 32 stays below 2^24: window sums are exact
+//   integers in float arithmetic. Running sums, fresh sums and any order of summation give
+//   bit-identical values, so the output cannot depend on how rows are split between threads.
+//   Window means and variances come from integral images (exact in int32 / double).
+// - Rows are processed in fixed stripes (cv::parallel_for_ over stripe indices that do not depend
+//   on the thread count). For one window size, a row is matched by one of two engines:
+//   * dense rows (most pixels still undecided: always at the first window): disparities are
+//     streamed in increasing order; for each d, the vertical window sums of L(x, y') R(x - d, y')
+//     of the previous row are updated by one row in and one row out, summed horizontally, turned
+//     into the NCC slice S(., d) and fed to a per-pixel peak tracker. Nothing else is stored: the
+//     best interior local maximum with its two neighbours (for the parabola), the highest other
+//     maximum (for the peak gap) and, for every right pixel q, the best d of its right-to-left
+//     profile S_RL(q, d) = S_LR(q + d, d), which is the left-right check without a second pass.
+//   * sparse rows (the pixels that failed with the smaller windows): the vertical window sums are
+//     kept per column for all d at once (so a failed region that spans many rows is updated by
+//     running sums), the profile of each failed pixel is built from them, and the right-to-left
+//     profile is computed only for the right pixels that those profiles point at.
+//   Both compute S with the same float expression from the same exact sums, so they agree.
+// - Only the pixels that failed with one window go on to the next; pixels whose left patch lacks
+//   structure at a window are not matched with it at all.
+//
+// Against foreground fattening (ours; METHOD.md "What a faithful prototype measured"): a pixel
+// accepted with a window of width w is rejected when, inside that same window, the accepted
+// disparities reach farther than edge_disparity_jump_px from its own. A window straddling a
+// depth edge is exactly the case where a confident, left-right-consistent match can be the
+// other surface's disparity, and the fattened band around an edge is never wider than the window
+// that produced it, so testing each pixel's own window catches it. Measured on Middlebury in
+// notes/matcher_design.md.
+
 #include "endo_stereo/core/matcher.hpp"
 
 #include <algorithm>
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <atomic>
-#include <cstdio>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -83,91 +93,122 @@ namespace {
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
-// Column blocks used to find, per disparity, the column intervals worth computing.
+// Column blocks used to find, per disparity, the column intervals worth computing (dense rows).
 constexpr int kBlock = 32;
-
 // Sentinel of an empty effective range.
 constexpr int kEmptyLo = std::numeric_limits<int>::max() / 2;
 constexpr int kEmptyHi = std::numeric_limits<int>::min() / 2;
-
-/// Per-window-size maps over the whole image.
-struct LevelMaps {
-  cv::Mat mean_l;   ///< CV_32F window mean of the left (value - 128)
-  cv::Mat inv_l;    ///< CV_32F sqrt(n / (n * sum(L^2) - sum(L)^2)), 0 where flat
-  cv::Mat sum_r;    ///< CV_32F window sum of the right (value - 128)
-  cv::Mat inv_r;    ///< CV_32F as inv_l for the right view
-  cv::Mat gamma_l;  ///< CV_32F stdev of the Laplacian over the window, left
-  cv::Mat gamma_r;  ///< CV_32F same, right
-};
 
 struct Interval {
   int a, b;  // inclusive
 };
 
-/// Columns of the vertical window sums of one disparity that hold valid values, for the row
-/// computed last (`cur_row`) and the row before it (`prev`), as sorted disjoint intervals.
+/// Columns of the dense engine's vertical window sums of one disparity that hold valid values,
+/// for the row computed last (`cur_row`) and the row before it (`prev`), as sorted disjoint
+/// intervals.
 struct VValidity {
   int cur_row = -10;
   std::vector<Interval> cur, prev;
+};
+
+/// Per-row window statistics at one window size (index = column).
+struct RowMaps {
+  std::vector<float> mean_l;   // window mean of L - 128
+  std::vector<float> inv_l;    // sqrt(n / (n sum L^2 - (sum L)^2)), 0 where flat
+  std::vector<float> sum_r;    // window sum of R - 128
+  std::vector<float> inv_r;
+  std::vector<float> gamma_l;  // stdev of the Laplacian over the window
+  std::vector<float> gamma_r;
+  std::vector<int> stamp_l, stamp_r;  // sparse rows: computed for this stamp
 };
 
 /// Scratch of one worker, reused between rows, stripes, levels and frames.
 struct Scratch {
   int width = 0;
   int num_d = 0;
+  int dpad = 0;                    // num_d rounded up to a multiple of 8
+  int stamp = 0;                   // increases with every processed row
+  // Dense engine.
   std::vector<float> v;            // vertical window sums, num_d rows of width
   std::vector<VValidity> valid;    // per disparity
   std::vector<float> tmp_a, tmp_b, hsum;
-  std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
-  std::vector<int> elo_i, ehi_i;
-  std::vector<float> p1, p2, best, best_d, best_l, best_r, second;
-  std::vector<float> rb_v, rb_d;
   std::vector<int> cover;          // per block, per disparity: pixels whose range holds it
   std::vector<int> iv_start;       // per disparity: first index into ivs
   std::vector<Interval> ivs;       // the intervals of all disparities, grouped by disparity
   std::vector<Interval> pieces, merged, need, runs, out_ivs;
-  std::vector<uint8_t> cand;       // per right pixel: a candidate of phase B
-  std::vector<int> block_a, block_b;  // per block: first and last selected column
-  std::vector<int> blocks, active, pick, cand_q;
+  std::vector<int> block_a, block_b, blocks, active, pick, cand_q;
+  // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
+  std::vector<float> colsum;
+  std::vector<int> col_row;
+  std::vector<float> hvec, prof;
+  // Row state.
+  RowMaps maps;
+  std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
+  std::vector<int> elo_i, ehi_i;
+  std::vector<float> p1, p2, best, best_d, best_l, best_r, second;
+  std::vector<float> rb_v, rb_d;
 
   void ensure(int w, int nd) {
-    if (w != width || nd != num_d) {
-      width = w;
-      num_d = nd;
-      v.assign(static_cast<size_t>(nd) * w, 0.f);
-      valid.assign(nd, VValidity{});
-      for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &act, &p1, &p2, &best, &best_d,
-                        &best_l, &best_r, &second, &rb_v, &rb_d}) {
-        vec->assign(w + 64, 0.f);
-      }
-      elo_i.assign(w, 0);
-      ehi_i.assign(w, 0);
-      const int nb = (w + kBlock - 1) / kBlock;
-      cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
-      iv_start.assign(nd + 1, 0);
-      ivs.reserve(static_cast<size_t>(nb) * nd);
-      cand.assign(w, 0);
-      block_a.assign(nb, 0);
-      block_b.assign(nb, 0);
+    if (w == width && nd == num_d) return;
+    width = w;
+    num_d = nd;
+    dpad = (nd + 7) / 8 * 8;
+    v.assign(static_cast<size_t>(nd) * w, 0.f);
+    valid.assign(nd, VValidity{});
+    for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &act, &p1, &p2, &best, &best_d, &best_l,
+                      &best_r, &second, &rb_v, &rb_d, &maps.mean_l, &maps.inv_l, &maps.sum_r,
+                      &maps.inv_r, &maps.gamma_l, &maps.gamma_r}) {
+      vec->assign(w + 64, 0.f);
     }
+    maps.stamp_l.assign(w, -1);
+    maps.stamp_r.assign(w, -1);
+    elo_i.assign(w, 0);
+    ehi_i.assign(w, 0);
+    const int nb = (w + kBlock - 1) / kBlock;
+    cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
+    iv_start.assign(nd + 1, 0);
+    block_a.assign(nb, 0);
+    block_b.assign(nb, 0);
+    colsum.assign(static_cast<size_t>(w) * dpad, 0.f);
+    col_row.assign(w, -10);
+    hvec.assign(dpad, 0.f);
+    prof.assign(dpad, 0.f);
   }
-  /// Forget all vertical sums (new level or new frame).
-  void resetV() {
+  /// Forget all window sums (new stripe or new window size).
+  void resetSums() {
     for (auto& vv : valid) {
       vv.cur_row = -10;
       vv.cur.clear();
       vv.prev.clear();
     }
+    std::fill(col_row.begin(), col_row.end(), -10);
   }
 };
 
 // --- Vectorisable kernels. Built for AVX2 and for the baseline, chosen at load time, so the
 // library runs on any x86-64 and uses AVX2 where the CPU has it. ---------------------------------
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && !defined(__SANITIZE_ADDRESS__)
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
 #define ES_KERNEL __attribute__((target_clones("avx2", "default")))
 #else
 #define ES_KERNEL
 #endif
+#define ES_INLINE __attribute__((always_inline)) inline
+
+// The vector helpers are always inlined into the AVX2 or baseline clone; the ABI note GCC gives
+// for 32-byte vector values in baseline code does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef float V8f __attribute__((vector_size(32)));
+typedef int V8i __attribute__((vector_size(32)));
+
+ES_INLINE V8f load8(const float* p) {
+  V8f v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+ES_INLINE void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
+ES_INLINE V8f max8(V8f a, V8f b) { return a > b ? a : b; }
+ES_INLINE V8f splat8(float f) { return V8f{f, f, f, f, f, f, f, f}; }
 
 ES_KERNEL void vRunning(int n, float* __restrict v, const float* __restrict l_in,
                         const float* __restrict r_in, const float* __restrict l_out,
@@ -231,12 +272,35 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   }
 }
 
-/// Inputs of the per-disparity update of one row interval. Pointers are offset so that index i
-/// is column x = a + i (left quantities) or right column x - d (right quantities, rb_*).
+// Column sums of the sparse engine: cs[k] (+)= l * r[k] for all disparity indices (r reversed).
+ES_KERNEL void colSet(int n, float* __restrict cs, float l, const float* __restrict r) {
+  for (int k = 0; k < n; ++k) cs[k] = l * r[k];
+}
+ES_KERNEL void colAdd(int n, float* __restrict cs, float l, const float* __restrict r) {
+  for (int k = 0; k < n; ++k) cs[k] += l * r[k];
+}
+ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
+                          float l_out, const float* __restrict r_out) {
+  for (int k = 0; k < n; ++k) cs[k] += l_in * r_in[k] - l_out * r_out[k];
+}
+ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
+  for (int k = 0; k < n; ++k) h[k] += a[k];
+}
+ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
+                         const float* __restrict b) {
+  for (int k = 0; k < n; ++k) h[k] += a[k] - b[k];
+}
+
+/// Inputs of the dense engine's per-disparity update of one row interval. Pointers are offset so
+/// that index i is column x = a + i (left quantities) or right column x - d (right quantities and
+/// rb_*). When v is set, the horizontal window sum is taken from it directly (w loads per value,
+/// cheaper than the doubling passes for small windows); otherwise h holds it.
 struct SliceArgs {
   int n;
+  int w;
   float d;
-  const float* h;       // window sums of L * R(x - d)
+  const float* v;       // vertical sums at column x - r, or null
+  const float* h;       // window sums of L * R(x - d), when v is null
   const float* mean_l;
   const float* inv_l;
   const float* sum_r;   // at x - d
@@ -253,24 +317,12 @@ struct SliceArgs {
 // range. The highest interior maximum is the best (its neighbours kept for the parabola); every
 // other maximum, and a range end where the profile rises towards it (the true peak may lie
 // beyond), competes for the peak gap. Local maxima are never adjacent, so "outside +-1 px of the
-// best" holds by construction.
-//
-// Written once on GCC vector types (8 lanes; AVX2 in the avx2 clone, two SSE halves otherwise)
-// for the body and once in scalar form for the tail; both compute the same thing lane by lane.
-typedef float V8f __attribute__((vector_size(32)));
-typedef int V8i __attribute__((vector_size(32)));
-
-__attribute__((always_inline)) inline V8f load8(const float* p) {
-  V8f v;
-  std::memcpy(&v, p, sizeof(v));
-  return v;
-}
-__attribute__((always_inline)) inline void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
-__attribute__((always_inline)) inline V8f max8(V8f a, V8f b) { return a > b ? a : b; }
-
+// best" holds by construction. Written once on GCC vector types (8 lanes: AVX2 in the avx2 clone,
+// two SSE halves otherwise) for the body, once in scalar form for the tail; the same lane by lane.
 template <bool kOwn, bool kRl>
-__attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
+ES_INLINE void sliceUpdate(const SliceArgs& g) {
   const float d = g.d, dm1 = g.d - 1.f;
+  const float* __restrict vs = g.v;
   const float* __restrict h = g.h;
   const float* __restrict mean_l = g.mean_l;
   const float* __restrict inv_l = g.inv_l;
@@ -288,14 +340,21 @@ __attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
   float* __restrict second = g.second;
   float* __restrict rb_v = g.rb_v;
   float* __restrict rb_d = g.rb_d;
+  const int w = g.w;
   int i = 0;
-  const V8f vd = {d, d, d, d, d, d, d, d};
-  const V8f vdm1 = vd - 1.f;
-  const V8f vninf = {kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf, kNegInf};
-  const V8f vzero = {0, 0, 0, 0, 0, 0, 0, 0};
+  const V8f vd = splat8(d);
+  const V8f vdm1 = splat8(dm1);
+  const V8f vninf = splat8(kNegInf);
+  const V8f vzero = splat8(0.f);
   for (; i + 8 <= g.n; i += 8) {
-    const V8f s = (load8(h + i) - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) *
-                  load8(inv_r + i);
+    V8f hs;
+    if (vs) {
+      hs = load8(vs + i);
+      for (int j = 1; j < w; ++j) hs += load8(vs + i + j);
+    } else {
+      hs = load8(h + i);
+    }
+    const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
     const V8f lo = load8(elo + i), hi = load8(ehi + i);
     const V8i inr = (lo <= vd) & (vd <= hi);
     if (kOwn) {
@@ -318,7 +377,7 @@ __attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
     }
     if (kRl) {
       // Right-to-left profile of right pixel x - d: S_RL(x - d, d) = S_LR(x, d). Strict > keeps
-      // the smallest disparity among equal values, whatever the order of the intervals.
+      // the smallest disparity among equal values (d increases).
       const V8f rv = load8(rb_v + i);
       const V8i up = inr & (s > rv);
       store8(rb_v + i, up ? s : rv);
@@ -326,7 +385,14 @@ __attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
     }
   }
   for (; i < g.n; ++i) {
-    const float s = (h[i] - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
+    float hs;
+    if (vs) {
+      hs = vs[i];
+      for (int j = 1; j < w; ++j) hs += vs[i + j];
+    } else {
+      hs = h[i];
+    }
+    const float s = (hs - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
     const bool inr = (elo[i] <= d) & (d <= ehi[i]);
     if (kOwn) {
       const bool own = inr & (act[i] > 0.f);
@@ -356,20 +422,29 @@ __attribute__((always_inline)) inline void sliceUpdate(const SliceArgs& g) {
 }
 
 ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true>(g); }
-ES_KERNEL void sliceOwn(const SliceArgs& g) { sliceUpdate<true, false>(g); }
-ES_KERNEL void sliceRl(const SliceArgs& g) { sliceUpdate<false, true>(g); }
+
+/// The NCC from exact sums; both engines use this same expression, so they agree bit for bit.
+inline float nccValue(float h, float mean_l, float sum_r, float inv_l, float inv_r) {
+  return (h - mean_l * sum_r) * inv_l * inv_r;
+}
+
+/// Per-frame images shared (read-only) by the workers.
+struct FrameData {
+  cv::Mat lf, rf;          // CV_32F value - 128
+  cv::Mat rf_rev;          // CV_32F rf mirrored left-right, padded (sparse engine)
+  int rev_pad = 0;         // columns of padding on the left of rf_rev
+  cv::Mat int_l, int_r;    // CV_32S integral images of the 8-bit views
+  cv::Mat sq_l, sq_r;      // CV_64F integral images of their squares
+  cv::Mat lap_l, lap_r;    // CV_32F 3x3 Laplacian on 0..255
+  cv::Mat int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;  // CV_64F integrals of it and its square
+  cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
+};
 
 }  // namespace
 
-struct RobustMatcher::Impl {
-  // Per-frame images.
-  cv::Mat lf, rf;        // CV_32F value - 128
-  cv::Mat lap_l, lap_r;  // CV_32F 3x3 Laplacian on 0..255
-  cv::Mat lap_l2, lap_r2;
-  cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
-  cv::Mat state;         // CV_8U: 0 = undecided/failed so far, 1 = accepted
-  cv::Mat window_idx;    // CV_8U window index that accepted
-  LevelMaps maps;
+struct RobustMatcher::Impl : FrameData {
+  cv::Mat state;           // CV_8U: 0 = undecided/failed so far, 1 = accepted
+  cv::Mat window_idx;      // CV_8U window index that accepted
   cv::Mat tmp1, tmp2, tmp3, tmp4, code_before;
 
   std::mutex pool_mutex;
@@ -412,27 +487,79 @@ namespace {
 /// Everything one row needs at one window size.
 struct LevelContext {
   const MatcherParams* mp;
+  const FrameData* im;
   int level;
   int w, r;
   int width, height;
   int dmin, dmax;
-  const cv::Mat* lf;
-  const cv::Mat* rf;
-  const cv::Mat* range_lo;
-  const cv::Mat* range_hi;
-  const LevelMaps* maps;
   cv::Mat* state;       // 1 = accepted earlier
   cv::Mat* window_idx;
   MatchResult* out;
 };
 
+// Window box sum of an integral image at (x, y), half width r.
+template <typename T>
+inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
+  const T* top = integral.ptr<T>(y - r);
+  const T* bot = integral.ptr<T>(y + r + 1);
+  return static_cast<double>(bot[x + r + 1]) - static_cast<double>(top[x + r + 1]) -
+         static_cast<double>(bot[x - r]) + static_cast<double>(top[x - r]);
+}
+
+/// Left statistics of column x of row y (inside the border), into s.maps.
+inline void computeMapL(const LevelContext& c, Scratch& s, int x, int y) {
+  const int r = c.r;
+  const double n = static_cast<double>(c.w) * c.w;
+  const double sum = boxAt<int>(c.im->int_l, x, y, r);
+  const double sq = boxAt<double>(c.im->sq_l, x, y, r);
+  const double a = n * sq - sum * sum;  // exact: integers below 2^53
+  s.maps.mean_l[x] = static_cast<float>((sum - 128.0 * n) / n);
+  s.maps.inv_l[x] = a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
+  const double ls = boxAt<double>(c.im->int_lap_l, x, y, r) / n;
+  const double ls2 = boxAt<double>(c.im->sq_lap_l, x, y, r) / n;
+  s.maps.gamma_l[x] = static_cast<float>(std::sqrt(std::max(0.0, ls2 - ls * ls)));
+}
+
+/// Right statistics of column q of row y (inside the border), into s.maps.
+inline void computeMapR(const LevelContext& c, Scratch& s, int q, int y) {
+  const int r = c.r;
+  const double n = static_cast<double>(c.w) * c.w;
+  const double sum = boxAt<int>(c.im->int_r, q, y, r);
+  const double sq = boxAt<double>(c.im->sq_r, q, y, r);
+  const double a = n * sq - sum * sum;
+  s.maps.sum_r[q] = static_cast<float>(sum - 128.0 * n);
+  s.maps.inv_r[q] = a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
+  const double rs = boxAt<double>(c.im->int_lap_r, q, y, r) / n;
+  const double rs2 = boxAt<double>(c.im->sq_lap_r, q, y, r) / n;
+  s.maps.gamma_r[q] = static_cast<float>(std::sqrt(std::max(0.0, rs2 - rs * rs)));
+}
+
+inline void needMapL(const LevelContext& c, Scratch& s, int x, int y) {
+  if (s.maps.stamp_l[x] != s.stamp) {
+    computeMapL(c, s, x, y);
+    s.maps.stamp_l[x] = s.stamp;
+  }
+}
+inline void needMapR(const LevelContext& c, Scratch& s, int q, int y) {
+  if (s.maps.stamp_r[q] != s.stamp) {
+    computeMapR(c, s, q, y);
+    s.maps.stamp_r[q] = s.stamp;
+  }
+}
+
+// ---------------------------------------------------------------------------------------------
+// Dense engine.
+// ---------------------------------------------------------------------------------------------
+
 /// Make the vertical window sums of disparity index k valid on the columns @p need (sorted,
 /// disjoint intervals) of row y: columns already computed for row y are kept, columns valid for
 /// row y - 1 are updated by one row in and one row out, the rest are summed afresh over the
-/// window's rows. All exact (integers in float), so the three ways give identical values.
+/// window's rows. All exact, so the three ways give identical values.
 void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<Interval>& need) {
   const int d = c.dmin + k;
   const int r = c.r;
+  const cv::Mat& lf = c.im->lf;
+  const cv::Mat& rf = c.im->rf;
   VValidity& vv = s.valid[k];
   if (vv.cur_row != y) {
     if (vv.cur_row == y - 1) {
@@ -457,15 +584,11 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
     if (x <= nv.b) s.pieces.push_back({x, nv.b});
   }
   if (s.pieces.empty()) return;
-  const float* l_in = c.lf->ptr<float>(std::min(y + r, c.height - 1));
-  const float* r_in = c.rf->ptr<float>(std::min(y + r, c.height - 1)) - d;
-  const float* l_out = c.lf->ptr<float>(std::max(y - r - 1, 0));
-  const float* r_out = c.rf->ptr<float>(std::max(y - r - 1, 0)) - d;
   auto fresh = [&](int fa, int fb) {
     const int n = fb - fa + 1;
-    vSet(n, v + fa, c.lf->ptr<float>(y - r) + fa, c.rf->ptr<float>(y - r) + fa - d);
+    vSet(n, v + fa, lf.ptr<float>(y - r) + fa, rf.ptr<float>(y - r) + fa - d);
     for (int yy = y - r + 1; yy <= y + r; ++yy) {
-      vAdd(n, v + fa, c.lf->ptr<float>(yy) + fa, c.rf->ptr<float>(yy) + fa - d);
+      vAdd(n, v + fa, lf.ptr<float>(yy) + fa, rf.ptr<float>(yy) + fa - d);
     }
   };
   size_t pi = 0;
@@ -476,7 +599,9 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
       const Interval& iv = vv.prev[j];
       if (iv.a > px) fresh(px, iv.a - 1);
       const int ra = std::max(px, iv.a), e = std::min(p.b, iv.b);
-      vRunning(e - ra + 1, v + ra, l_in + ra, r_in + ra, l_out + ra, r_out + ra);
+      // prev is only set when row y - 1 was computed, so y - r - 1 >= 0 here.
+      vRunning(e - ra + 1, v + ra, lf.ptr<float>(y + r) + ra, rf.ptr<float>(y + r) + ra - d,
+               lf.ptr<float>(y - r - 1) + ra, rf.ptr<float>(y - r - 1) + ra - d);
       px = e + 1;
       if (px > p.b) break;
     }
@@ -500,14 +625,12 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
 }
 
 /// For each disparity, the column intervals worth computing: the hull, within each block of
-/// kBlock columns, of the pixels selected by @p pick, for the blocks where one of them has the
+/// kBlock columns, of the columns @p cols (sorted), for the blocks where one of them has the
 /// disparity in its effective range; intervals closer than a window width are merged (their
 /// vertical sums overlap anyway). Clipped to the columns where both windows fit. Results in
-/// s.ivs / s.iv_start. Cost O(W + blocks * disparities).
+/// s.ivs / s.iv_start. Cost O(columns + blocks * disparities).
 void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& cols) {
   const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
-  const int nb = (W + kBlock - 1) / kBlock;
-  // Blocks holding a selected column, in increasing order.
   s.blocks.clear();
   for (int x : cols) {
     const int b = x / kBlock;
@@ -522,7 +645,6 @@ void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& c
     --cv[s.ehi_i[x] - c.dmin + 1];
     s.block_b[b] = x;
   }
-  (void)nb;
   for (int b : s.blocks) {
     int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
     for (int k = 1; k < nd; ++k) cv[k] += cv[k - 1];
@@ -546,12 +668,10 @@ void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& c
   s.iv_start[nd] = static_cast<int>(s.ivs.size());
 }
 
-struct DbgCounters { std::atomic<long> dense_el{0}, own_el{0}, rl_el{0}, rows_dense{0}, rows_sparse{0}; ~DbgCounters(){ if(getenv("ES_DBG")) fprintf(stderr,"dense %ld own %ld rl %ld rows d %ld s %ld\n",dense_el.load(),own_el.load(),rl_el.load(),rows_dense.load(),rows_sparse.load()); } };
-DbgCounters g_dbg;
 /// NCC slices of disparity index k over the column intervals @p out_ivs (sorted, disjoint) of
-/// row y, fed to the peak tracker.
-template <bool kOwn, bool kRl>
-void runSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* out_ivs, int count) {
+/// row y, fed to the peak tracker (own profiles and right-to-left profiles).
+void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* out_ivs,
+                 int count) {
   if (count <= 0) return;
   const int d = c.dmin + k;
   const int r = c.r;
@@ -566,19 +686,28 @@ void runSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* 
   }
   ensureV(c, s, k, y, s.need);
   const float* v = s.v.data() + static_cast<size_t>(k) * c.width;
+  // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
+  // tracker; beyond, the doubling passes are cheaper.
+  const bool direct = c.w <= 15;
   for (int i = 0; i < count; ++i) {
     const int a = out_ivs[i].a;
     const int n = out_ivs[i].b - a + 1;
-    if (kOwn && kRl) g_dbg.dense_el += n; else if (kOwn) g_dbg.own_el += n; else g_dbg.rl_el += n;
-    boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
     SliceArgs g;
     g.n = n;
+    g.w = c.w;
     g.d = static_cast<float>(d);
-    g.h = s.hsum.data();
-    g.mean_l = c.maps->mean_l.ptr<float>(y) + a;
-    g.inv_l = c.maps->inv_l.ptr<float>(y) + a;
-    g.sum_r = c.maps->sum_r.ptr<float>(y) + a - d;
-    g.inv_r = c.maps->inv_r.ptr<float>(y) + a - d;
+    if (direct) {
+      g.v = v + a - r;
+      g.h = nullptr;
+    } else {
+      boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
+      g.v = nullptr;
+      g.h = s.hsum.data();
+    }
+    g.mean_l = s.maps.mean_l.data() + a;
+    g.inv_l = s.maps.inv_l.data() + a;
+    g.sum_r = s.maps.sum_r.data() + a - d;
+    g.inv_r = s.maps.inv_r.data() + a - d;
     g.elo = s.elo.data() + a;
     g.ehi = s.ehi.data() + a;
     g.act = s.act.data() + a;
@@ -591,35 +720,150 @@ void runSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* 
     g.second = s.second.data() + a;
     g.rb_v = s.rb_v.data() + a - d;
     g.rb_d = s.rb_d.data() + a - d;
-    if (kOwn && kRl) {
-      sliceOwnAndRl(g);
-    } else if (kOwn) {
-      sliceOwn(g);
-    } else {
-      sliceRl(g);
-    }
+    sliceOwnAndRl(g);
   }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Sparse engine.
+// ---------------------------------------------------------------------------------------------
+
+/// Make column x's vertical window sums (all disparities, [dpad]) valid for row y: running update
+/// from row y - 1 when that is what it holds, else summed afresh. The right image is read
+/// mirrored, so R(y', x - d) for d = dmin, dmin + 1, ... is contiguous.
+inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
+  if (s.col_row[x] == y) return;
+  const int r = c.r;
+  const int dp = s.dpad;
+  float* cs = s.colsum.data() + static_cast<size_t>(x) * dp;
+  const cv::Mat& lf = c.im->lf;
+  const cv::Mat& rr = c.im->rf_rev;
+  // rf_rev(y', rev_pad + W - 1 - x') = rf(y', x'), so R(y', x - d) = rf_rev(y', base + d).
+  const int base = c.im->rev_pad + c.width - 1 - x + c.dmin;
+  if (s.col_row[x] == y - 1) {
+    colRunning(dp, cs, lf.ptr<float>(y + r)[x], rr.ptr<float>(y + r) + base,
+               lf.ptr<float>(y - r - 1)[x], rr.ptr<float>(y - r - 1) + base);
+  } else {
+    colSet(dp, cs, lf.ptr<float>(y - r)[x], rr.ptr<float>(y - r) + base);
+    for (int yy = y - r + 1; yy <= y + r; ++yy) {
+      colAdd(dp, cs, lf.ptr<float>(yy)[x], rr.ptr<float>(yy) + base);
+    }
+  }
+  s.col_row[x] = y;
+}
+
+/// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1), the same rules as
+/// the streaming tracker of the dense engine.
+inline void scanProfile(const float* prof, int n, int lo, float* best, float* best_d,
+                        float* best_l, float* best_r, float* second) {
+  float b = kNegInf, sec = kNegInf;
+  int bi = -1;
+  for (int i = 1; i + 1 < n; ++i) {
+    if (prof[i] > prof[i - 1] && prof[i] >= prof[i + 1]) {
+      if (prof[i] > b) {
+        sec = std::max(sec, b);
+        b = prof[i];
+        bi = i;
+      } else {
+        sec = std::max(sec, prof[i]);
+      }
+    }
+  }
+  if (n >= 2 && prof[0] > prof[1]) sec = std::max(sec, prof[0]);
+  if (n >= 2 && prof[n - 1] > prof[n - 2]) sec = std::max(sec, prof[n - 1]);
+  *best = b;
+  *second = sec;
+  if (bi >= 0) {
+    *best_d = static_cast<float>(lo + bi);
+    *best_l = prof[bi - 1];
+    *best_r = prof[bi + 1];
+  }
+}
+
+/// Profiles of the active pixels of row y (phase A), from per-column sums.
+void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
+  const int r = c.r;
+  const int dp = s.dpad;
+  const size_t na = s.active.size();
+  size_t i = 0;
+  while (i < na) {
+    // A run of active pixels whose windows overlap: the horizontal sum slides along it.
+    size_t j = i;
+    while (j + 1 < na && s.active[j + 1] <= s.active[j] + c.w) ++j;
+    const int a = s.active[i], b = s.active[j];
+    for (int x = a - r; x <= b + r; ++x) ensureColumn(c, s, x, y);
+    float* h = s.hvec.data();
+    std::memcpy(h, s.colsum.data() + static_cast<size_t>(a - r) * dp, sizeof(float) * dp);
+    for (int x = a - r + 1; x <= a + r; ++x) {
+      vecAdd(dp, h, s.colsum.data() + static_cast<size_t>(x) * dp);
+    }
+    size_t next = i;
+    for (int x = a; x <= b; ++x) {
+      if (next <= j && s.active[next] == x) {
+        ++next;
+        needMapL(c, s, x, y);
+        const int lo = s.elo_i[x], hi = s.ehi_i[x];
+        const float ml = s.maps.mean_l[x], il = s.maps.inv_l[x];
+        for (int d = lo; d <= hi; ++d) {
+          needMapR(c, s, x - d, y);
+          s.prof[d - lo] = nccValue(h[d - c.dmin], ml, s.maps.sum_r[x - d], il, s.maps.inv_r[x - d]);
+        }
+        scanProfile(s.prof.data(), hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
+                    &s.best_r[x], &s.second[x]);
+      }
+      if (x < b) {
+        vecAddSub(dp, h, s.colsum.data() + static_cast<size_t>(x + r + 1) * dp,
+                  s.colsum.data() + static_cast<size_t>(x - r) * dp);
+      }
+    }
+    i = j + 1;
+  }
+}
+
+/// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
+/// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
+void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
+  const int r = c.r;
+  const int dp = s.dpad;
+  needMapR(c, s, q, y);
+  const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
+  float rv = kNegInf, rd = 0.f;
+  for (int d = c.dmin; d <= c.dmax; ++d) {
+    const int x = q + d;
+    if (x < 0 || x >= c.width || s.elo_i[x] > d || s.ehi_i[x] < d) continue;
+    const int k = d - c.dmin;
+    float h = 0.f;
+    for (int xx = x - r; xx <= x + r; ++xx) {
+      ensureColumn(c, s, xx, y);
+      h += s.colsum[static_cast<size_t>(xx) * dp + k];
+    }
+    needMapL(c, s, x, y);
+    const float v = nccValue(h, s.maps.mean_l[x], sr, s.maps.inv_l[x], ir);
+    if (v > rv) {
+      rv = v;
+      rd = static_cast<float>(d);
+    }
+  }
+  s.rb_v[q] = rv;
+  s.rb_d[q] = rd;
+}
+
+// ---------------------------------------------------------------------------------------------
+// One row at one window size.
+// ---------------------------------------------------------------------------------------------
+
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
-///
-/// Dense rows (most pixels still undecided, always the case at the first window) are matched in
-/// one pass: every NCC value of the row feeds both the pixel's own profile and the right-to-left
-/// profile of its right pixel. Sparse rows (larger windows, where only failed pixels remain) are
-/// matched in two passes, so the work follows the failed pixels instead of the image width:
-/// (A) the profiles of the active pixels only, which give each its best disparity; (B) for the
-/// right pixels q those bests point at, the right-to-left profiles S(q + d, d) over all d.
 void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
   const int r = c.r;
   const int nd = c.dmax - c.dmin + 1;
   if (y < r || y >= c.height - r) return;
+  ++s.stamp;
 
-  const int* rlo = c.range_lo->ptr<int>(y);
-  const int* rhi = c.range_hi->ptr<int>(y);
+  const int* rlo = c.im->range_lo.ptr<int>(y);
+  const int* rhi = c.im->range_hi.ptr<int>(y);
   const uint8_t* st = c.state->ptr<uint8_t>(y);
   uint8_t* code = c.out->code.ptr<uint8_t>(y);
-  const float* gl = c.maps->gamma_l.ptr<float>(y);
   const float gmin = static_cast<float>(c.mp->gamma_min);
 
   // Effective range of each pixel at this window: its requested range, cut so that both windows
@@ -629,6 +873,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   int* ehi_i = s.ehi_i.data();
   float* elo = s.elo.data();
   float* ehi = s.ehi.data();
+  int n_valid = 0, n_open = 0;
   for (int x = 0; x < W; ++x) {
     const bool inside = (x >= r) & (x < W - r);
     int lo = std::max(rlo[x], x - (W - 1 - r));
@@ -640,96 +885,84 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     ehi_i[x] = hi;
     elo[x] = ok ? static_cast<float>(lo) : 1e9f;
     ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
+    n_valid += ok;
+    n_open += ok & (st[x] == 0);
   }
-  // Active = not accepted yet, range of at least 3 values (an interior maximum needs two
-  // neighbours), left patch with structure. The others that are still open get their code.
-  s.active.clear();
-  int n_valid = 0;
-  for (int x = r; x < W - r; ++x) {
-    if (elo_i[x] > ehi_i[x]) continue;
-    ++n_valid;
-    if (st[x] != 0) continue;
-    if (ehi_i[x] - elo_i[x] < 2) {
-      code[x] = kCodeNoPeak;
-    } else if (!(gl[x] > gmin)) {
-      code[x] = kCodeRejectStructure;
-    } else {
-      s.active.push_back(x);
+  if (n_open == 0) return;
+  // Dense when most of the row is still open (the first window); the maps of the whole row are
+  // needed then, otherwise they are computed where needed.
+  const bool dense = 2 * n_open >= n_valid;
+  if (dense) {
+    for (int x = r; x < W - r; ++x) {
+      computeMapL(c, s, x, y);
+      computeMapR(c, s, x, y);
     }
   }
+  // Active = not accepted yet, range of at least 3 values (an interior maximum needs two
+  // neighbours), left patch with structure. The other open pixels get their code here.
+  s.active.clear();
+  for (int x = r; x < W - r; ++x) {
+    if (elo_i[x] > ehi_i[x] || st[x] != 0) continue;
+    if (ehi_i[x] - elo_i[x] < 2) {
+      code[x] = kCodeNoPeak;
+      continue;
+    }
+    if (!dense) needMapL(c, s, x, y);
+    if (!(s.maps.gamma_l[x] > gmin)) {
+      code[x] = kCodeRejectStructure;
+      continue;
+    }
+    s.active.push_back(x);
+  }
   if (s.active.empty()) return;
-  std::fill(s.act.begin(), s.act.begin() + W, 0.f);
   for (int x : s.active) {
-    s.act[x] = 1.f;
-    s.p1[x] = s.p2[x] = kNegInf;
     s.best[x] = s.second[x] = kNegInf;
     s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
   }
-  std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
-  std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
 
-  const int n_active = static_cast<int>(s.active.size());
-  const bool dense = 2 * n_active >= n_valid;
-  if (dense) g_dbg.rows_dense++; else g_dbg.rows_sparse++;
-  const float* gr = c.maps->gamma_r.ptr<float>(y);
   const float delta_min = static_cast<float>(c.mp->delta_min);
   const float min_ncc = static_cast<float>(c.mp->min_ncc);
-  // The discrimination test, shared by both paths: best peak above min_ncc and clear of the
-  // second by more than delta_min (a single peak is measured against the lowest NCC, -1).
+  // The discrimination test: best peak above min_ncc and clear of the second by more than
+  // delta_min (a single peak is measured against the lowest NCC, -1).
   auto peakGap = [&](int x) {
     const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
     return s.best[x] - comp;
   };
   if (dense) {
+    std::fill(s.act.begin(), s.act.begin() + W, 0.f);
+    for (int x : s.active) {
+      s.act[x] = 1.f;
+      s.p1[x] = s.p2[x] = kNegInf;
+    }
+    std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
+    std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
     s.pick.clear();
     for (int x = r; x < W - r; ++x) {
       if (elo_i[x] <= ehi_i[x]) s.pick.push_back(x);
     }
     buildIntervals(c, s, s.pick);
     for (int k = 0; k < nd; ++k) {
-      runSlices<true, true>(c, s, k, y, s.ivs.data() + s.iv_start[k],
-                            s.iv_start[k + 1] - s.iv_start[k]);
+      denseSlices(c, s, k, y, s.ivs.data() + s.iv_start[k], s.iv_start[k + 1] - s.iv_start[k]);
     }
   } else {
-    buildIntervals(c, s, s.active);
-    for (int k = 0; k < nd; ++k) {
-      runSlices<true, false>(c, s, k, y, s.ivs.data() + s.iv_start[k],
-                             s.iv_start[k + 1] - s.iv_start[k]);
-    }
-    // Phase B only for pixels that pass everything but the left-right check.
+    sparseProfiles(c, s, y);
+    // Right-to-left profiles only where a pixel passes everything but the left-right check.
     s.cand_q.clear();
     for (int x : s.active) {
       if (s.best[x] == kNegInf) continue;
       const int q = x - static_cast<int>(s.best_d[x]);
-      if (!(gr[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < min_ncc) continue;
+      needMapR(c, s, q, y);
+      if (!(s.maps.gamma_r[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < min_ncc) {
+        continue;
+      }
       s.cand_q.push_back(q);
     }
-    if (!s.cand_q.empty()) {
-      std::sort(s.cand_q.begin(), s.cand_q.end());
-      // Runs of candidate right pixels (gaps shorter than a window merged: the vertical sums of
-      // the gap are needed anyway for the horizontal window sums).
-      s.runs.clear();
-      for (int q : s.cand_q) {
-        if (!s.runs.empty() && q <= s.runs.back().b + c.w) {
-          s.runs.back().b = std::max(s.runs.back().b, q);
-        } else {
-          s.runs.push_back({q, q});
-        }
-      }
-      for (int k = 0; k < nd; ++k) {
-        const int d = c.dmin + k;
-        const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
-        s.out_ivs.clear();
-        for (const Interval& run : s.runs) {
-          const int a = std::max(lo, run.a + d), b = std::min(hi, run.b + d);
-          if (a <= b) s.out_ivs.push_back({a, b});
-        }
-        runSlices<false, true>(c, s, k, y, s.out_ivs.data(), static_cast<int>(s.out_ivs.size()));
-      }
-    }
+    std::sort(s.cand_q.begin(), s.cand_q.end());
+    s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
+    for (int q : s.cand_q) sparseRightToLeft(c, s, q, y);
   }
 
-  // Decide each active pixel.
+  // Decide each active pixel, criteria in the paper's order.
   float* disp = c.out->disparity.ptr<float>(y);
   float* conf = c.out->confidence.ptr<float>(y);
   uint8_t* stw = c.state->ptr<uint8_t>(y);
@@ -742,7 +975,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
-    if (!(gr[q] > gmin)) {
+    if (!dense) needMapR(c, s, q, y);
+    if (!(s.maps.gamma_r[q] > gmin)) {
       code[x] = kCodeRejectStructure;
       continue;
     }
@@ -751,8 +985,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
       code[x] = kCodeRejectPeakGap;
       continue;
     }
-    const float d_rl = s.rb_d[q];
-    if (!(std::fabs(static_cast<float>(bd) - d_rl) < eps)) {
+    if (!(std::fabs(static_cast<float>(bd) - s.rb_d[q]) < eps)) {
       code[x] = kCodeRejectLeftRight;
       continue;
     }
@@ -769,54 +1002,14 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   }
 }
 
-void computeLevelMaps(const cv::Mat& lf, const cv::Mat& rf, const cv::Mat& lap_l,
-                      const cv::Mat& lap_l2, const cv::Mat& lap_r, const cv::Mat& lap_r2, int w,
-                      LevelMaps& m, cv::Mat& t1, cv::Mat& t2) {
-  const cv::Size ks(w, w);
-  const double n = static_cast<double>(w) * w;
-  auto side = [&](const cv::Mat& img, cv::Mat& mean_or_sum, cv::Mat& inv, bool as_mean) {
-    cv::boxFilter(img, t1, CV_32F, ks, cv::Point(-1, -1), false, cv::BORDER_REPLICATE);
-    cv::sqrBoxFilter(img, t2, CV_32F, ks, cv::Point(-1, -1), false, cv::BORDER_REPLICATE);
-    mean_or_sum.create(img.size(), CV_32F);
-    inv.create(img.size(), CV_32F);
-    for (int y = 0; y < img.rows; ++y) {
-      const float* s1 = t1.ptr<float>(y);
-      const float* s2 = t2.ptr<float>(y);
-      float* o = mean_or_sum.ptr<float>(y);
-      float* iv = inv.ptr<float>(y);
-      for (int x = 0; x < img.cols; ++x) {
-        // Both sums are exact integers: n * sum2 - sum^2 is exact in double.
-        const double a = n * static_cast<double>(s2[x]) -
-                         static_cast<double>(s1[x]) * static_cast<double>(s1[x]);
-        iv[x] = a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
-        o[x] = as_mean ? static_cast<float>(s1[x] / n) : s1[x];
-      }
-    }
-  };
-  side(lf, m.mean_l, m.inv_l, true);
-  side(rf, m.sum_r, m.inv_r, false);
-  auto gamma = [&](const cv::Mat& lap, const cv::Mat& lap2, cv::Mat& g) {
-    cv::boxFilter(lap, t1, CV_32F, ks, cv::Point(-1, -1), true, cv::BORDER_REPLICATE);
-    cv::boxFilter(lap2, t2, CV_32F, ks, cv::Point(-1, -1), true, cv::BORDER_REPLICATE);
-    g.create(lap.size(), CV_32F);
-    for (int y = 0; y < lap.rows; ++y) {
-      const float* a = t1.ptr<float>(y);
-      const float* b = t2.ptr<float>(y);
-      float* o = g.ptr<float>(y);
-      for (int x = 0; x < lap.cols; ++x) o[x] = std::sqrt(std::max(0.f, b[x] - a[x] * a[x]));
-    }
-  };
-  gamma(lap_l, lap_l2, m.gamma_l);
-  gamma(lap_r, lap_r2, m.gamma_r);
-}
-
-// Our measure against foreground fattening (see the block comment at the top of this file and
-// notes/matcher_design.md): a pixel accepted with a window of width w is rejected when the accepted
-// disparities inside that same window (judged on the map before this step) reach more than
-// edge_disparity_jump_px away from its own disparity, i.e. when its window straddles a depth edge.
-// Pixels accepted with a window wider than edge_window_max_px are also rejected when their w_min
-// window straddles an edge. Min and max over each window size are grey-level erosions/dilations of
-// the map (invalid pixels neutral), so the step costs O(pixels) per window size.
+// ---------------------------------------------------------------------------------------------
+// Our measure against foreground fattening: a pixel accepted with a window of width w is rejected
+// when the accepted disparities inside that same window (judged on the map before this step)
+// reach more than edge_disparity_jump_px away from its own, i.e. when its window straddles a
+// depth edge. With edge_window_max_px, pixels accepted with a wider window are also rejected when
+// their w_min window straddles an edge. Min and max over each window size are grey-level
+// erosions/dilations of the map (invalid pixels neutral), so the step is O(pixels) per window size.
+// ---------------------------------------------------------------------------------------------
 void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
                           MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
                           cv::Mat& hi) {
@@ -897,6 +1090,7 @@ class ThreadCountGuard {
   bool active_;
 };
 
+
 }  // namespace
 
 void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResult& out,
@@ -926,6 +1120,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   Impl& im = *impl_;
   ThreadCountGuard thread_guard(mp.num_threads);
   const int W = left.cols, H = left.rows;
+  const int nd = mp.max_disparity - mp.min_disparity + 1;
 
   out.disparity.create(H, W, CV_32FC1);
   out.disparity.setTo(std::numeric_limits<float>::quiet_NaN());
@@ -938,10 +1133,20 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
 
   left.convertTo(im.lf, CV_32F, 1.0, -128.0);
   right.convertTo(im.rf, CV_32F, 1.0, -128.0);
+  // Mirrored right view for the sparse engine, padded so that every disparity of the range can
+  // be read for every column (the padding is zero; those disparities are outside the ranges).
+  im.rev_pad = std::max(0, -mp.min_disparity);
+  const int dpad = (nd + 7) / 8 * 8;
+  const int rev_w = im.rev_pad + W + std::max(0, mp.min_disparity + dpad) + 8;
+  im.rf_rev.create(H, rev_w, CV_32F);
+  im.rf_rev.setTo(0.f);
+  cv::flip(im.rf, im.rf_rev(cv::Rect(im.rev_pad, 0, W, H)), 1);
+  cv::integral(left, im.int_l, im.sq_l, CV_32S, CV_64F);
+  cv::integral(right, im.int_r, im.sq_r, CV_32S, CV_64F);
   cv::Laplacian(left, im.lap_l, CV_32F, 1);
   cv::Laplacian(right, im.lap_r, CV_32F, 1);
-  cv::multiply(im.lap_l, im.lap_l, im.lap_l2);
-  cv::multiply(im.lap_r, im.lap_r, im.lap_r2);
+  cv::integral(im.lap_l, im.int_lap_l, im.sq_lap_l, CV_64F, CV_64F);
+  cv::integral(im.lap_r, im.int_lap_r, im.sq_lap_r, CV_64F, CV_64F);
 
   im.range_lo.create(H, W, CV_32S);
   im.range_hi.create(H, W, CV_32S);
@@ -973,38 +1178,27 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   im.window_idx.setTo(0);
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
-  const int nd = mp.max_disparity - mp.min_disparity + 1;
   const int num_stripes = (H + kStripeRows - 1) / kStripeRows;
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
-    const auto tl0 = std::chrono::steady_clock::now();
-    computeLevelMaps(im.lf, im.rf, im.lap_l, im.lap_l2, im.lap_r, im.lap_r2, w, im.maps, im.tmp1,
-                     im.tmp2);
-    const auto tl1 = std::chrono::steady_clock::now();
-    LevelContext c{&mp, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
-                   &im.lf, &im.rf, &im.range_lo, &im.range_hi, &im.maps, &im.state,
-                   &im.window_idx, &out};
+    const LevelContext c{&mp, &im, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
+                         &im.state, &im.window_idx, &out};
     cv::parallel_for_(cv::Range(0, num_stripes), [&](const cv::Range& rg) {
       std::unique_ptr<Scratch> s = im.acquire();
       s->ensure(W, nd);
       for (int stripe = rg.start; stripe < rg.end; ++stripe) {
-        s->resetV();
+        s->resetSums();
         const int y_end = std::min(H, (stripe + 1) * kStripeRows);
         for (int y = stripe * kStripeRows; y < y_end; ++y) processRow(c, y, *s);
       }
       im.release(std::move(s));
-    });
-    if (getenv("ES_DBG")) fprintf(stderr, "level %d maps %.1f ms match %.1f ms\n", level,
-      std::chrono::duration<double, std::milli>(tl1 - tl0).count(),
-      std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - tl1).count());
+    }, num_stripes);
   }
-  const auto te0 = std::chrono::steady_clock::now();
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4);
   }
   const auto t1 = std::chrono::steady_clock::now();
-  if (getenv("ES_DBG")) fprintf(stderr, "edge %.1f ms\n", std::chrono::duration<double, std::milli>(t1 - te0).count());
 
   for (int y = 0; y < H; ++y) {
     const uint8_t* cd = out.code.ptr<uint8_t>(y);
@@ -1016,20 +1210,19 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   const PostFilterParams& fp = filter_params_;
   if (fp.remove_outliers) removeIsolatedOutliers(out.disparity, out.code, fp);
   if (fp.fill_holes) {
-    cv::Mat before = out.code.clone();
+    out.code.copyTo(im.code_before);
     fillSmallHoles(out.disparity, out.code, fp);
     // A filled pixel gets the lowest confidence of the measured neighbours it was filled from.
     for (int y = 0; y < H; ++y) {
+      const uint8_t* cd = out.code.ptr<uint8_t>(y);
       for (int x = 0; x < W; ++x) {
-        if (out.code.at<uint8_t>(y, x) != kCodeFilled || before.at<uint8_t>(y, x) == kCodeFilled) {
-          continue;
-        }
+        if (cd[x] != kCodeFilled || im.code_before.at<uint8_t>(y, x) == kCodeFilled) continue;
         float cmin = 1.f;
         for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
+          const uint8_t* cb = im.code_before.ptr<uint8_t>(yy);
+          const float* cf = out.confidence.ptr<float>(yy);
           for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
-            if (before.at<uint8_t>(yy, xx) >= kCodeAcceptedBase) {
-              cmin = std::min(cmin, out.confidence.at<float>(yy, xx));
-            }
+            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
           }
         }
         out.confidence.at<float>(y, x) = cmin;

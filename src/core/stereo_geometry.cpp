@@ -46,7 +46,8 @@ std::string CameraCalibration::validate(const std::string& name) const {
     return msg.str();
   }
   if (binning_x < 0 || binning_y < 0 || binning_x > 64 || binning_y > 64) {
-    msg << name << ".binning_x/binning_y: must be in [0, 64], got " << binning_x << ", " << binning_y;
+    msg << name << ".binning_x/binning_y: must be in [0, 64], got " << binning_x << ", "
+        << binning_y;
     return msg.str();
   }
   if (!allFinite(K)) return name + ".K: contains NaN or infinity";

@@ -182,7 +182,7 @@ TEST_P(UncalibratedRigTest, AlignsRowsWithoutCalibration) {
     // 66-94 mm); a sheared left warp (e.g. an unrotated left view against a rolled right one)
     // would add up to sin(3 deg) * 360 = 19 px across the rows.
     EXPECT_LT(gt.d_max - gt.d_min, 10.0);
-    EXPECT_GT(gt.d_min, 0.0);  // raw disparities keep their sign
+    EXPECT_GT(gt.d_min, 0.0);              // raw disparities keep their sign
     EXPECT_FALSE(rect.geometry().metric);  // no focal / baseline given: disparity only
   }
 }

@@ -21,7 +21,10 @@
  *      Exact for any epipole position, including inside the image. See PolarRectification
  *      (below) for how a polar pixel and a polar disparity map back to the raw images.
  *    Matches are pooled over RectifyParams::estimation_frames frames; the estimate then stays
- *    fixed while the quality figure stays good and is re-estimated when it drifts.
+ *    fixed while the quality figure stays good and is re-estimated when it drifts. Estimation
+ *    is refused (rectify() returns false, "could not be estimated: ...") with too few
+ *    consistent matches (textureless pairs), when over 90% of them fit one homography (a planar
+ *    scene or no parallax: F is ambiguous), or when the result does not align its own inliers.
  * 3. Pass-through: the input is already rectified (geometry from the calibration's P when given,
  *    else from focal_px / baseline_m).
  *

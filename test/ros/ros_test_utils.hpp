@@ -1,0 +1,132 @@
+/**
+ * @file ros_test_utils.hpp
+ * @brief Helpers of the rostest gtest nodes: collect messages and wait for one that matches with
+ * a timeout (never a fixed sleep that can hang), read endo_stereo's diagnostics, build stereo
+ * input messages from a synthetic surgical frame.
+ *
+ * The test main() starts a ros::AsyncSpinner, so callbacks run while a test waits.
+ */
+#pragma once
+
+#include <condition_variable>
+#include <functional>
+#include <mutex>
+#include <string>
+#include <vector>
+
+#include <diagnostic_msgs/DiagnosticArray.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+
+#include "endo_stereo/ros/conversions.hpp"
+
+namespace endo_stereo {
+namespace test {
+
+/// Subscribes to a topic and keeps every message received, in order.
+template <class M>
+class Collector {
+ public:
+  using ConstPtr = boost::shared_ptr<const M>;
+  Collector(ros::NodeHandle& nh, const std::string& topic, uint32_t queue_size = 100) {
+    sub_ = nh.subscribe<M>(topic, queue_size, &Collector::cb, this);
+  }
+  ~Collector() { sub_.shutdown(); }
+
+  /// The first message received so far, or later within @p timeout_s, for which @p pred holds;
+  /// null on timeout.
+  ConstPtr waitFor(const std::function<bool(const M&)>& pred, double timeout_s) {
+    const auto deadline =
+        std::chrono::steady_clock::now() + std::chrono::duration<double>(timeout_s);
+    std::unique_lock<std::mutex> lock(mutex_);
+    size_t checked = 0;
+    for (;;) {
+      for (; checked < msgs_.size(); ++checked) {
+        if (pred(*msgs_[checked])) return msgs_[checked];
+      }
+      if (cv_.wait_until(lock, deadline) == std::cv_status::timeout) {
+        for (; checked < msgs_.size(); ++checked) {
+          if (pred(*msgs_[checked])) return msgs_[checked];
+        }
+        return nullptr;
+      }
+      if (!ros::ok()) return nullptr;
+    }
+  }
+  std::vector<ConstPtr> all() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return msgs_;
+  }
+  size_t count() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    return msgs_.size();
+  }
+  void clear() {
+    std::lock_guard<std::mutex> lock(mutex_);
+    msgs_.clear();
+  }
+  uint32_t numPublishers() const { return sub_.getNumPublishers(); }
+  void shutdown() { sub_.shutdown(); }
+
+ private:
+  void cb(const ConstPtr& msg) {
+    {
+      std::lock_guard<std::mutex> lock(mutex_);
+      msgs_.push_back(msg);
+    }
+    cv_.notify_all();
+  }
+  ros::Subscriber sub_;
+  std::mutex mutex_;
+  std::condition_variable cv_;
+  std::vector<ConstPtr> msgs_;
+};
+
+/// Poll @p cond every 20 ms until it holds or @p timeout_s passes. @return whether it held.
+inline bool waitUntil(const std::function<bool()>& cond, double timeout_s) {
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(timeout_s);
+  while (ros::ok()) {
+    if (cond()) return true;
+    if (ros::WallTime::now() > deadline) return false;
+    ros::WallDuration(0.02).sleep();
+  }
+  return false;
+}
+
+/// The key/value pairs of the status of the nodelet @p nodelet_name ("/stereo/reconstruction")
+/// in a diagnostics message; empty when it holds none.
+inline std::map<std::string, std::string> statusValues(const diagnostic_msgs::DiagnosticArray& a,
+                                                       const std::string& nodelet_name,
+                                                       std::string* message = nullptr) {
+  std::map<std::string, std::string> kv;
+  const std::string want = nodelet_name.substr(nodelet_name[0] == '/' ? 1 : 0) + ": ";
+  for (const auto& s : a.status) {
+    if (s.name.compare(0, want.size(), want) != 0) continue;
+    for (const auto& v : s.values) kv[v.key] = v.value;
+    if (message) *message = s.message;
+  }
+  return kv;
+}
+
+inline double numberOr(const std::map<std::string, std::string>& kv, const std::string& key,
+                       double fallback) {
+  auto it = kv.find(key);
+  if (it == kv.end()) return fallback;
+  try {
+    return std::stod(it->second);
+  } catch (...) {
+    return fallback;
+  }
+}
+
+inline sensor_msgs::ImagePtr imageMsg(const cv::Mat& m, const std::string& encoding,
+                                      const ros::Time& stamp, const std::string& frame) {
+  std_msgs::Header h;
+  h.stamp = stamp;
+  h.frame_id = frame;
+  return boost::make_shared<sensor_msgs::Image>(ros_conv::matToImage(m, encoding, h));
+}
+
+}  // namespace test
+}  // namespace endo_stereo
