@@ -9,8 +9,9 @@
 #             on any crash (the input is saved under $FUZZ_DIR/artifacts/HARNESS/).
 #   build     build only.
 #   regress   run every kept corpus and regression input once (seconds; no fuzzing).
-#   minimize  merge what the last runs found into the kept corpus, keeping only inputs that add
-#             coverage, and refuse when the result exceeds FUZZ_CORPUS_MAX_KB (default 16) per harness.
+#   minimize  merge what the last runs found into the kept corpus (only inputs that add coverage),
+#             keeping the hand-written seeds and the smallest found inputs within
+#             FUZZ_CORPUS_MAX_KB (default 8) per harness.
 # HARNESS: pipeline matcher camera_info opencv_stereo params raw_image (default: all).
 # Environment: FUZZ_SECONDS, FUZZ_DIR (default $ES_ROOT/build_fuzz, git-ignored), JOBS (make jobs,
 # default 1), CXX (default clang++-14), FUZZ_RSS_MB (default 2048), FUZZ_TIMEOUT_S (per input, 10).
@@ -26,7 +27,7 @@ JOBS="${JOBS:-1}"
 CXX="${CXX:-clang++-14}"
 FUZZ_RSS_MB="${FUZZ_RSS_MB:-2048}"
 FUZZ_TIMEOUT_S="${FUZZ_TIMEOUT_S:-10}"
-FUZZ_CORPUS_MAX_KB="${FUZZ_CORPUS_MAX_KB:-16}"
+FUZZ_CORPUS_MAX_KB="${FUZZ_CORPUS_MAX_KB:-8}"
 
 # --- toolchain: clang-14 and its compiler-rt (libFuzzer lives in libclang-rt-14-dev).
 need=()
@@ -117,21 +118,33 @@ for h in "${HARNESSES[@]}"; do
       set -e
       ;;
     minimize)
+      # Merge the kept corpus and what the runs found (inputs that add coverage only), then keep
+      # the hand-written seeds (named files) plus the smallest found inputs within the budget.
       new="$FUZZ_DIR/minimized/$h"
-      rm -rf "$new"; mkdir -p "$new"
+      rm -rf "$new"; mkdir -p "$new" "$ES_ROOT/test/fuzz/corpus/$h"
       set +e
-      "$bin" "${common[@]}" -merge=1 "$new" "${seeds[@]:0:1}" "$FUZZ_DIR/work/$h" > "$log" 2>&1
+      "$bin" "${common[@]}" -merge=1 "$new" "$ES_ROOT/test/fuzz/corpus/$h" "$FUZZ_DIR/work/$h" \
+        > "$log" 2>&1
       rc=$?
       set -e
-      kb=$(( $(cat "$new"/* 2>/dev/null | wc -c) / 1024 ))
-      if [ "$rc" = 0 ] && [ "$kb" -le "$FUZZ_CORPUS_MAX_KB" ]; then
-        mkdir -p "$ES_ROOT/test/fuzz/corpus/$h"
-        find "$ES_ROOT/test/fuzz/corpus/$h" -type f -delete
-        cp "$new"/* "$ES_ROOT/test/fuzz/corpus/$h/" 2>/dev/null || true
-        echo "[fuzz] $h: corpus now $(ls "$ES_ROOT/test/fuzz/corpus/$h" | wc -l) files, ${kb} KB"
-      else
-        echo "[fuzz] $h: merged corpus ${kb} KB (limit ${FUZZ_CORPUS_MAX_KB}) or merge failed; kept as is"
+      if [ "$rc" != 0 ]; then
+        echo "[fuzz] $h: merge failed (see $log); corpus kept as is"
+        continue
       fi
+      keep="$FUZZ_DIR/minimized/$h.keep"
+      rm -rf "$keep"; mkdir -p "$keep"
+      find "$ES_ROOT/test/fuzz/corpus/$h" -type f ! -regex '.*/[0-9a-f]\{40\}$' -exec cp {} "$keep/" \;
+      budget=$(( FUZZ_CORPUS_MAX_KB * 1024 - $(cat "$keep"/* 2>/dev/null | wc -c) ))
+      while read -r size f; do
+        [ -e "$keep/$(basename "$f")" ] && continue
+        [ "$size" -le "$budget" ] || break
+        cp "$f" "$keep/"
+        budget=$((budget - size))
+      done < <(find "$new" -type f -printf '%s %p\n' | sort -n)
+      find "$ES_ROOT/test/fuzz/corpus/$h" -type f -delete
+      cp "$keep"/* "$ES_ROOT/test/fuzz/corpus/$h/"
+      echo "[fuzz] $h: corpus now $(ls "$ES_ROOT/test/fuzz/corpus/$h" | wc -l) files," \
+        "$(cat "$ES_ROOT/test/fuzz/corpus/$h"/* | wc -c) bytes (merge kept $(ls "$new" | wc -l))"
       continue
       ;;
     run)

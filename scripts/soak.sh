@@ -7,7 +7,7 @@
 #             dynamic_reconfigure with random valid and invalid values; the node's RSS is sampled
 #             at start, after 500 frames, every 1000 frames and at the end. Fails if a frame is
 #             lost beyond 1%, the node dies, or RSS grows more than 8 MB after warm-up.
-#   overload  pairs published at OVERLOAD_RATE Hz (default 200) for OVERLOAD_S s (default 15),
+#   overload  pairs published at OVERLOAD_RATE Hz (default 200) for OVERLOAD_S s (default 60),
 #             faster than the node processes them: fails unless memory stays bounded, drops are
 #             counted, every pair is accounted for, and the newest pair is processed.
 # Environment: WS (workspace with endo_stereo built; default ./ws), SOAK_OUT (results and logs,
@@ -38,7 +38,7 @@ case "$mode" in
   soak)
     args=(soak --frames "${SOAK_FRAMES:-20000}") ;;
   overload)
-    args=(overload --rate "${OVERLOAD_RATE:-200}" --seconds "${OVERLOAD_S:-15}"
+    args=(overload --rate "${OVERLOAD_RATE:-200}" --seconds "${OVERLOAD_S:-60}"
           --param queue_size=2) ;;
   *) echo "usage: $0 [soak|overload]" >&2; exit 2 ;;
 esac

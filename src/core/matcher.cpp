@@ -38,6 +38,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <ctime>
+#include <atomic>
+#include <cstdio>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -91,6 +94,8 @@ std::string MatcherParams::validate() const {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
+struct SpDbg { std::atomic<long> act{0}, cand{0}, fresh{0}, run{0}, mapl{0}, mapr{0}; ~SpDbg(){ if (getenv("ES_DBG")) fprintf(stderr, "sparse: active %ld cand %ld fresh cols %ld running cols %ld mapL %ld mapR %ld\n", act.load(), cand.load(), fresh.load(), run.load(), mapl.load(), mapr.load()); } };
+SpDbg g_sp;
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
 // Column blocks used to find, per disparity, the column intervals worth computing (dense rows).
@@ -119,7 +124,7 @@ struct RowMaps {
   std::vector<float> inv_r;
   std::vector<float> gamma_l;  // stdev of the Laplacian over the window
   std::vector<float> gamma_r;
-  std::vector<int> stamp_l, stamp_r;  // sparse rows: computed for this stamp
+  std::vector<int> stamp_l, stamp_r, stamp_gl, stamp_gr;  // sparse rows: computed for this stamp
 };
 
 /// Scratch of one worker, reused between rows, stripes, levels and frames.
@@ -128,6 +133,8 @@ struct Scratch {
   int num_d = 0;
   int dpad = 0;                    // num_d rounded up to a multiple of 8
   int stamp = 0;                   // increases with every processed row
+  int uniform_row = -10;           // row whose vertical sums denseUniformRow left valid
+  std::vector<int> upto;           // denseUniformRow: per disparity, next column to update
   // Dense engine.
   std::vector<float> v;            // vertical window sums, num_d rows of width
   std::vector<VValidity> valid;    // per disparity
@@ -141,6 +148,7 @@ struct Scratch {
   std::vector<float> colsum;
   std::vector<int> col_row;
   std::vector<float> hvec, prof;
+  std::vector<double> dbl_a, dbl_b;
   // Row state.
   RowMaps maps;
   std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
@@ -162,16 +170,21 @@ struct Scratch {
     }
     maps.stamp_l.assign(w, -1);
     maps.stamp_r.assign(w, -1);
+    maps.stamp_gl.assign(w, -1);
+    maps.stamp_gr.assign(w, -1);
     elo_i.assign(w, 0);
     ehi_i.assign(w, 0);
     const int nb = (w + kBlock - 1) / kBlock;
     cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
     iv_start.assign(nd + 1, 0);
+    upto.assign(nd, 0);
     block_a.assign(nb, 0);
     block_b.assign(nb, 0);
     colsum.assign(static_cast<size_t>(w) * dpad, 0.f);
     col_row.assign(w, -10);
     hvec.assign(dpad, 0.f);
+    dbl_a.assign(w + 64, 0.0);
+    dbl_b.assign(w + 64, 0.0);
     prof.assign(dpad, 0.f);
   }
   /// Forget all window sums (new stripe or new window size).
@@ -182,6 +195,7 @@ struct Scratch {
       vv.prev.clear();
     }
     std::fill(col_row.begin(), col_row.end(), -10);
+    uniform_row = -10;
   }
 };
 
@@ -209,6 +223,26 @@ ES_INLINE V8f load8(const float* p) {
 ES_INLINE void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
 ES_INLINE V8f max8(V8f a, V8f b) { return a > b ? a : b; }
 ES_INLINE V8f splat8(float f) { return V8f{f, f, f, f, f, f, f, f}; }
+
+// Sum of w consecutive 8-lane loads starting at p, with four partial sums so the additions do
+// not form one long dependency chain (exact: integer-valued data).
+ES_INLINE V8f boxSum8(const float* p, int w) {
+  V8f a0 = load8(p);
+  if (w == 1) return a0;
+  V8f a1 = load8(p + 1), a2 = splat8(0.f), a3 = splat8(0.f);
+  int j = 2;
+  for (; j + 1 < w; j += 2) {
+    a2 += load8(p + j);
+    a3 += load8(p + j + 1);
+    if (j + 3 < w) {
+      a0 += load8(p + j + 2);
+      a1 += load8(p + j + 3);
+      j += 2;
+    }
+  }
+  if (j < w) a2 += load8(p + j);
+  return (a0 + a1) + (a2 + a3);
+}
 
 ES_KERNEL void vRunning(int n, float* __restrict v, const float* __restrict l_in,
                         const float* __restrict r_in, const float* __restrict l_out,
@@ -342,18 +376,13 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
   float* __restrict rb_d = g.rb_d;
   const int w = g.w;
   int i = 0;
+  const int n = g.n;
   const V8f vd = splat8(d);
   const V8f vdm1 = splat8(dm1);
   const V8f vninf = splat8(kNegInf);
   const V8f vzero = splat8(0.f);
-  for (; i + 8 <= g.n; i += 8) {
-    V8f hs;
-    if (vs) {
-      hs = load8(vs + i);
-      for (int j = 1; j < w; ++j) hs += load8(vs + i + j);
-    } else {
-      hs = load8(h + i);
-    }
+  for (; i + 8 <= n; i += 8) {
+    const V8f hs = vs ? boxSum8(vs + i, w) : load8(h + i);
     const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
     const V8f lo = load8(elo + i), hi = load8(ehi + i);
     const V8i inr = (lo <= vd) & (vd <= hi);
@@ -384,7 +413,7 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
       store8(rb_d + i, up ? vd : load8(rb_d + i));
     }
   }
-  for (; i < g.n; ++i) {
+  for (; i < n; ++i) {
     float hs;
     if (vs) {
       hs = vs[i];
@@ -422,6 +451,78 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
 }
 
 ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true>(g); }
+
+/// The same update where d is known to lie strictly inside every pixel's range, two past its low
+/// end and one before its high end (the bulk of a full search): no range masks, no range-end
+/// competitors, and every pixel's state is updated (those that are not active are ignored later).
+ES_KERNEL void sliceInterior(const SliceArgs& g) {
+  const float* __restrict vs = g.v;
+  const float* __restrict h = g.h;
+  const float* __restrict mean_l = g.mean_l;
+  const float* __restrict inv_l = g.inv_l;
+  const float* __restrict sum_r = g.sum_r;
+  const float* __restrict inv_r = g.inv_r;
+  float* __restrict p1 = g.p1;
+  float* __restrict p2 = g.p2;
+  float* __restrict best = g.best;
+  float* __restrict best_d = g.best_d;
+  float* __restrict best_l = g.best_l;
+  float* __restrict best_r = g.best_r;
+  float* __restrict second = g.second;
+  float* __restrict rb_v = g.rb_v;
+  float* __restrict rb_d = g.rb_d;
+  const int w = g.w;
+  const V8f vd = splat8(g.d);
+  const V8f vdm1 = splat8(g.d - 1.f);
+  const V8f vninf = splat8(kNegInf);
+  const int n = g.n;
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    const V8f hs = vs ? boxSum8(vs + i, w) : load8(h + i);
+    const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
+    const V8f a1 = load8(p1 + i), a2 = load8(p2 + i), bb = load8(best + i);
+    const V8i is_max = (a1 > a2) & (a1 >= s);
+    const V8i new_best = is_max & (a1 > bb);
+    const V8f cand = new_best ? bb : (is_max ? a1 : vninf);
+    store8(second + i, max8(load8(second + i), cand));
+    store8(best + i, new_best ? a1 : bb);
+    store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
+    store8(best_l + i, new_best ? a2 : load8(best_l + i));
+    store8(best_r + i, new_best ? s : load8(best_r + i));
+    store8(p2 + i, a1);
+    store8(p1 + i, s);
+    const V8f rv = load8(rb_v + i);
+    const V8i up = s > rv;
+    store8(rb_v + i, up ? s : rv);
+    store8(rb_d + i, up ? vd : load8(rb_d + i));
+  }
+  const float d = g.d, dm1 = g.d - 1.f;
+  for (; i < n; ++i) {
+    float hs;
+    if (vs) {
+      hs = vs[i];
+      for (int j = 1; j < w; ++j) hs += vs[i + j];
+    } else {
+      hs = h[i];
+    }
+    const float s = (hs - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
+    const float a1 = p1[i], a2 = p2[i], bb = best[i];
+    const bool is_max = (a1 > a2) & (a1 >= s);
+    const bool new_best = is_max & (a1 > bb);
+    const float cand = new_best ? bb : (is_max ? a1 : kNegInf);
+    second[i] = std::max(second[i], cand);
+    best[i] = new_best ? a1 : bb;
+    best_d[i] = new_best ? dm1 : best_d[i];
+    best_l[i] = new_best ? a2 : best_l[i];
+    best_r[i] = new_best ? s : best_r[i];
+    p2[i] = a1;
+    p1[i] = s;
+    const float rv = rb_v[i];
+    const bool up = s > rv;
+    rb_v[i] = up ? s : rv;
+    rb_d[i] = up ? d : rb_d[i];
+  }
+}
 
 /// The NCC from exact sums; both engines use this same expression, so they agree bit for bit.
 inline float nccValue(float h, float mean_l, float sum_r, float inv_l, float inv_r) {
@@ -488,6 +589,7 @@ namespace {
 struct LevelContext {
   const MatcherParams* mp;
   const FrameData* im;
+  bool uniform_ranges;  // no per-pixel range: every pixel searches [dmin, dmax] (cut at borders)
   int level;
   int w, r;
   int width, height;
@@ -506,45 +608,119 @@ inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
          static_cast<double>(bot[x - r]) + static_cast<double>(top[x - r]);
 }
 
-/// Left statistics of column x of row y (inside the border), into s.maps.
-inline void computeMapL(const LevelContext& c, Scratch& s, int x, int y) {
-  const int r = c.r;
-  const double n = static_cast<double>(c.w) * c.w;
-  const double sum = boxAt<int>(c.im->int_l, x, y, r);
-  const double sq = boxAt<double>(c.im->sq_l, x, y, r);
+/// Left statistics of column x of row y (inside the border), into s.maps. The same expressions
+/// as statsRow/gammaRow, so lazily and row-wide computed values are identical.
+inline float invStd(double n, double sum, double sq) {
   const double a = n * sq - sum * sum;  // exact: integers below 2^53
-  s.maps.mean_l[x] = static_cast<float>((sum - 128.0 * n) / n);
-  s.maps.inv_l[x] = a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
-  const double ls = boxAt<double>(c.im->int_lap_l, x, y, r) / n;
-  const double ls2 = boxAt<double>(c.im->sq_lap_l, x, y, r) / n;
-  s.maps.gamma_l[x] = static_cast<float>(std::sqrt(std::max(0.0, ls2 - ls * ls)));
+  return a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
+}
+inline float gammaOf(double n, double sum, double sq) {
+  const double m = sum / n;
+  return static_cast<float>(std::sqrt(std::max(0.0, sq / n - m * m)));
 }
 
-/// Right statistics of column q of row y (inside the border), into s.maps.
-inline void computeMapR(const LevelContext& c, Scratch& s, int q, int y) {
-  const int r = c.r;
+inline void computeMapL(const LevelContext& c, Scratch& s, int x, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  const double sum = boxAt<int>(c.im->int_r, q, y, r);
-  const double sq = boxAt<double>(c.im->sq_r, q, y, r);
-  const double a = n * sq - sum * sum;
+  const double sum = boxAt<int>(c.im->int_l, x, y, c.r);
+  const double sq = boxAt<double>(c.im->sq_l, x, y, c.r);
+  s.maps.mean_l[x] = static_cast<float>((sum - 128.0 * n) / n);
+  s.maps.inv_l[x] = invStd(n, sum, sq);
+}
+inline void computeGammaL(const LevelContext& c, Scratch& s, int x, int y) {
+  const double n = static_cast<double>(c.w) * c.w;
+  s.maps.gamma_l[x] = gammaOf(n, boxAt<double>(c.im->int_lap_l, x, y, c.r),
+                              boxAt<double>(c.im->sq_lap_l, x, y, c.r));
+}
+inline void computeMapR(const LevelContext& c, Scratch& s, int q, int y) {
+  const double n = static_cast<double>(c.w) * c.w;
+  const double sum = boxAt<int>(c.im->int_r, q, y, c.r);
+  const double sq = boxAt<double>(c.im->sq_r, q, y, c.r);
   s.maps.sum_r[q] = static_cast<float>(sum - 128.0 * n);
-  s.maps.inv_r[q] = a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
-  const double rs = boxAt<double>(c.im->int_lap_r, q, y, r) / n;
-  const double rs2 = boxAt<double>(c.im->sq_lap_r, q, y, r) / n;
-  s.maps.gamma_r[q] = static_cast<float>(std::sqrt(std::max(0.0, rs2 - rs * rs)));
+  s.maps.inv_r[q] = invStd(n, sum, sq);
+}
+inline void computeGammaR(const LevelContext& c, Scratch& s, int q, int y) {
+  const double n = static_cast<double>(c.w) * c.w;
+  s.maps.gamma_r[q] = gammaOf(n, boxAt<double>(c.im->int_lap_r, q, y, c.r),
+                              boxAt<double>(c.im->sq_lap_r, q, y, c.r));
+}
+
+/// Box sums of one integral image for the windows of row y, columns [x0, x1], half width r.
+template <typename T>
+ES_KERNEL void boxRow(const cv::Mat& integral, int y, int r, int x0, int x1, double* out) {
+  const T* top = integral.ptr<T>(y - r);
+  const T* bot = integral.ptr<T>(y + r + 1);
+  for (int x = x0; x <= x1; ++x) {
+    out[x] = (static_cast<double>(bot[x + r + 1]) - static_cast<double>(top[x + r + 1])) -
+             (static_cast<double>(bot[x - r]) - static_cast<double>(top[x - r]));
+  }
+}
+
+ES_KERNEL void statsRow(int x0, int x1, double n, const double* sum, const double* sq,
+                        float* mean_or_sum, float* inv, bool as_mean) {
+  for (int x = x0; x <= x1; ++x) {
+    inv[x] = invStd(n, sum[x], sq[x]);
+    mean_or_sum[x] = static_cast<float>(as_mean ? (sum[x] - 128.0 * n) / n : sum[x] - 128.0 * n);
+  }
+}
+
+ES_KERNEL void gammaRow(int x0, int x1, double n, const double* sum, const double* sq, float* g) {
+  for (int x = x0; x <= x1; ++x) g[x] = gammaOf(n, sum[x], sq[x]);
+}
+
+/// All statistics of row y (columns r .. W - 1 - r), as computeMapL/R give them one by one.
+void computeRowMaps(const LevelContext& c, Scratch& s, int y) {
+  const int r = c.r, x0 = r, x1 = c.width - 1 - r;
+  const double n = static_cast<double>(c.w) * c.w;
+  double* a = s.dbl_a.data();
+  double* b = s.dbl_b.data();
+  boxRow<int>(c.im->int_l, y, r, x0, x1, a);
+  boxRow<double>(c.im->sq_l, y, r, x0, x1, b);
+  statsRow(x0, x1, n, a, b, s.maps.mean_l.data(), s.maps.inv_l.data(), true);
+  boxRow<int>(c.im->int_r, y, r, x0, x1, a);
+  boxRow<double>(c.im->sq_r, y, r, x0, x1, b);
+  statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  boxRow<double>(c.im->int_lap_l, y, r, x0, x1, a);
+  boxRow<double>(c.im->sq_lap_l, y, r, x0, x1, b);
+  gammaRow(x0, x1, n, a, b, s.maps.gamma_l.data());
+  boxRow<double>(c.im->int_lap_r, y, r, x0, x1, a);
+  boxRow<double>(c.im->sq_lap_r, y, r, x0, x1, b);
+  gammaRow(x0, x1, n, a, b, s.maps.gamma_r.data());
 }
 
 inline void needMapL(const LevelContext& c, Scratch& s, int x, int y) {
   if (s.maps.stamp_l[x] != s.stamp) {
     computeMapL(c, s, x, y);
+    g_sp.mapl++;
     s.maps.stamp_l[x] = s.stamp;
   }
 }
 inline void needMapR(const LevelContext& c, Scratch& s, int q, int y) {
   if (s.maps.stamp_r[q] != s.stamp) {
     computeMapR(c, s, q, y);
+    g_sp.mapr++;
     s.maps.stamp_r[q] = s.stamp;
   }
+}
+inline void needGammaL(const LevelContext& c, Scratch& s, int x, int y) {
+  if (s.maps.stamp_gl[x] != s.stamp) {
+    computeGammaL(c, s, x, y);
+    s.maps.stamp_gl[x] = s.stamp;
+  }
+}
+inline void needGammaR(const LevelContext& c, Scratch& s, int q, int y) {
+  if (s.maps.stamp_gr[q] != s.stamp) {
+    computeGammaR(c, s, q, y);
+    s.maps.stamp_gr[q] = s.stamp;
+  }
+}
+
+/// Effective range of pixel (x, y) at this window: its requested range, cut so that both windows
+/// lie inside the images. @return false when empty (also outside [r, W - r)).
+inline bool effectiveRange(const LevelContext& c, int x, int y, int* lo, int* hi) {
+  if (x < c.r || x >= c.width - c.r) return false;
+  *lo = std::max(c.im->range_lo.ptr<int>(y)[x], x - (c.width - 1 - c.r));
+  *hi = std::min(c.im->range_hi.ptr<int>(y)[x], x - c.r);
+  return *lo <= *hi;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -571,6 +747,15 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
     vv.cur_row = y;
   }
   float* v = s.v.data() + static_cast<size_t>(k) * c.width;
+  // The common case of a full search: the same single interval as on the previous row.
+  if (need.size() == 1 && vv.cur.empty() && vv.prev.size() == 1 && vv.prev[0].a == need[0].a &&
+      vv.prev[0].b == need[0].b) {
+    const int ra = need[0].a, n = need[0].b - ra + 1;
+    vRunning(n, v + ra, lf.ptr<float>(y + r) + ra, rf.ptr<float>(y + r) + ra - d,
+             lf.ptr<float>(y - r - 1) + ra, rf.ptr<float>(y - r - 1) + ra - d);
+    vv.cur.push_back(need[0]);
+    return;
+  }
   // pieces := need minus cur.
   s.pieces.clear();
   size_t ci = 0;
@@ -668,12 +853,75 @@ void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& c
   s.iv_start[nd] = static_cast<int>(s.ivs.size());
 }
 
+/// NCC slice of disparity index k over columns [a, b] of row y, fed to the peak tracker (own
+/// profiles and right-to-left profiles); the vertical sums v (of disparity k) must be valid on
+/// [a - r, b + r].
+void sliceRange(const LevelContext& c, Scratch& s, int k, int a, int b, const float* v) {
+  const int d = c.dmin + k;
+  const int r = c.r;
+  // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
+  // tracker; beyond, the doubling passes are cheaper.
+  const bool direct = c.w <= 15;
+  // Columns where d is strictly inside every pixel's range (full search only: per-pixel ranges
+  // vary from pixel to pixel): d >= lo + 2 needs x <= d + W - 3 - r, d <= hi - 1 needs
+  // x >= d + 1 + r, with dmin + 2 <= d <= dmax - 1.
+  int fast_a = 1, fast_b = 0;
+  if (c.uniform_ranges && d >= c.dmin + 2 && d <= c.dmax - 1) {
+    fast_a = d + 1 + r;
+    fast_b = d + c.width - 3 - r;
+  }
+  auto run = [&](int ra, int rb, bool interior) {
+    if (ra > rb) return;
+    const int n = rb - ra + 1;
+    SliceArgs g;
+    g.n = n;
+    g.w = c.w;
+    g.d = static_cast<float>(d);
+    if (direct) {
+      g.v = v + ra - r;
+      g.h = nullptr;
+    } else {
+      boxSumRow(v + ra - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
+      g.v = nullptr;
+      g.h = s.hsum.data();
+    }
+    g.mean_l = s.maps.mean_l.data() + ra;
+    g.inv_l = s.maps.inv_l.data() + ra;
+    g.sum_r = s.maps.sum_r.data() + ra - d;
+    g.inv_r = s.maps.inv_r.data() + ra - d;
+    g.elo = s.elo.data() + ra;
+    g.ehi = s.ehi.data() + ra;
+    g.act = s.act.data() + ra;
+    g.p1 = s.p1.data() + ra;
+    g.p2 = s.p2.data() + ra;
+    g.best = s.best.data() + ra;
+    g.best_d = s.best_d.data() + ra;
+    g.best_l = s.best_l.data() + ra;
+    g.best_r = s.best_r.data() + ra;
+    g.second = s.second.data() + ra;
+    g.rb_v = s.rb_v.data() + ra - d;
+    g.rb_d = s.rb_d.data() + ra - d;
+    if (interior) {
+      sliceInterior(g);
+    } else {
+      sliceOwnAndRl(g);
+    }
+  };
+  const int fa = std::max(a, fast_a), fb = std::min(b, fast_b);
+  if (fa > fb) {
+    run(a, b, false);
+  } else {
+    run(a, fa - 1, false);
+    run(fa, fb, true);
+    run(fb + 1, b, false);
+  }
+}
+
 /// NCC slices of disparity index k over the column intervals @p out_ivs (sorted, disjoint) of
-/// row y, fed to the peak tracker (own profiles and right-to-left profiles).
+/// row y (per-pixel ranges).
 void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval* out_ivs,
                  int count) {
   if (count <= 0) return;
-  const int d = c.dmin + k;
   const int r = c.r;
   s.need.clear();
   for (int i = 0; i < count; ++i) {
@@ -686,42 +934,47 @@ void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval
   }
   ensureV(c, s, k, y, s.need);
   const float* v = s.v.data() + static_cast<size_t>(k) * c.width;
-  // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
-  // tracker; beyond, the doubling passes are cheaper.
-  const bool direct = c.w <= 15;
-  for (int i = 0; i < count; ++i) {
-    const int a = out_ivs[i].a;
-    const int n = out_ivs[i].b - a + 1;
-    SliceArgs g;
-    g.n = n;
-    g.w = c.w;
-    g.d = static_cast<float>(d);
-    if (direct) {
-      g.v = v + a - r;
-      g.h = nullptr;
-    } else {
-      boxSumRow(v + a - r, n, c.w, s.hsum.data(), s.tmp_a.data(), s.tmp_b.data());
-      g.v = nullptr;
-      g.h = s.hsum.data();
+  for (int i = 0; i < count; ++i) sliceRange(c, s, k, out_ivs[i].a, out_ivs[i].b, v);
+}
+
+/// A dense row of a full search: disparity d is in the range of exactly the columns
+/// [d + r, d + W - 1 - r] (within [r, W - 1 - r]). The row is walked in chunks of kChunk columns,
+/// all disparities per chunk, so the per-pixel state of a chunk stays in the L1 cache; the
+/// vertical sums of each disparity are brought up to the chunk's right edge (plus r) as it goes.
+/// Chunks keep the order of disparities for every right pixel (x = q + d grows with d), so the
+/// right-to-left ties resolve as in a plain sweep.
+void denseUniformRow(const LevelContext& c, Scratch& s, int y) {
+  constexpr int kChunk = 128;
+  const int W = c.width, r = c.r, nd = c.dmax - c.dmin + 1;
+  const cv::Mat& lf = c.im->lf;
+  const cv::Mat& rf = c.im->rf;
+  const bool running = s.uniform_row == y - 1;
+  for (int k = 0; k < nd; ++k) s.upto[k] = std::max(r, c.dmin + k + r) - r;
+  for (int x0 = r; x0 <= W - 1 - r; x0 += kChunk) {
+    const int x1 = std::min(x0 + kChunk - 1, W - 1 - r);
+    for (int k = 0; k < nd; ++k) {
+      const int d = c.dmin + k;
+      const int a = std::max({r, d + r, x0}), b = std::min({W - 1 - r, d + W - 1 - r, x1});
+      if (a > b) continue;
+      float* v = s.v.data() + static_cast<size_t>(k) * W;
+      const int va = s.upto[k], vb = b + r;
+      if (va <= vb) {
+        const int n = vb - va + 1;
+        if (running) {
+          vRunning(n, v + va, lf.ptr<float>(y + r) + va, rf.ptr<float>(y + r) + va - d,
+                   lf.ptr<float>(y - r - 1) + va, rf.ptr<float>(y - r - 1) + va - d);
+        } else {
+          vSet(n, v + va, lf.ptr<float>(y - r) + va, rf.ptr<float>(y - r) + va - d);
+          for (int yy = y - r + 1; yy <= y + r; ++yy) {
+            vAdd(n, v + va, lf.ptr<float>(yy) + va, rf.ptr<float>(yy) + va - d);
+          }
+        }
+        s.upto[k] = vb + 1;
+      }
+      sliceRange(c, s, k, a, b, v);
     }
-    g.mean_l = s.maps.mean_l.data() + a;
-    g.inv_l = s.maps.inv_l.data() + a;
-    g.sum_r = s.maps.sum_r.data() + a - d;
-    g.inv_r = s.maps.inv_r.data() + a - d;
-    g.elo = s.elo.data() + a;
-    g.ehi = s.ehi.data() + a;
-    g.act = s.act.data() + a;
-    g.p1 = s.p1.data() + a;
-    g.p2 = s.p2.data() + a;
-    g.best = s.best.data() + a;
-    g.best_d = s.best_d.data() + a;
-    g.best_l = s.best_l.data() + a;
-    g.best_r = s.best_r.data() + a;
-    g.second = s.second.data() + a;
-    g.rb_v = s.rb_v.data() + a - d;
-    g.rb_d = s.rb_d.data() + a - d;
-    sliceOwnAndRl(g);
   }
+  s.uniform_row = y;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -731,8 +984,9 @@ void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval
 /// Make column x's vertical window sums (all disparities, [dpad]) valid for row y: running update
 /// from row y - 1 when that is what it holds, else summed afresh. The right image is read
 /// mirrored, so R(y', x - d) for d = dmin, dmin + 1, ... is contiguous.
-inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
+__attribute__((noinline)) void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
   if (s.col_row[x] == y) return;
+  if (s.col_row[x] == y - 1) g_sp.run++; else g_sp.fresh++;
   const int r = c.r;
   const int dp = s.dpad;
   float* cs = s.colsum.data() + static_cast<size_t>(x) * dp;
@@ -781,7 +1035,7 @@ inline void scanProfile(const float* prof, int n, int lo, float* best, float* be
 }
 
 /// Profiles of the active pixels of row y (phase A), from per-column sums.
-void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
+__attribute__((noinline)) void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
   const int r = c.r;
   const int dp = s.dpad;
   const size_t na = s.active.size();
@@ -802,7 +1056,8 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
       if (next <= j && s.active[next] == x) {
         ++next;
         needMapL(c, s, x, y);
-        const int lo = s.elo_i[x], hi = s.ehi_i[x];
+        int lo = 0, hi = -1;
+        effectiveRange(c, x, y, &lo, &hi);
         const float ml = s.maps.mean_l[x], il = s.maps.inv_l[x];
         for (int d = lo; d <= hi; ++d) {
           needMapR(c, s, x - d, y);
@@ -822,23 +1077,31 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
 
 /// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
 /// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
-void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
+/// The window sum of left pixel q + d at disparity d gathers column x' of the column sums at
+/// entry d for |x' - q - d| <= r; so each column adds a contiguous run of entries to the profile.
+__attribute__((noinline)) void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   const int r = c.r;
   const int dp = s.dpad;
+  const int nd = c.dmax - c.dmin + 1;
+  const int xa = std::max(0, q + c.dmin - r), xb = std::min(c.width - 1, q + c.dmax + r);
+  float* h = s.hvec.data();
+  std::fill(h, h + dp, 0.f);
+  for (int xx = xa; xx <= xb; ++xx) {
+    ensureColumn(c, s, xx, y);
+    // Entries k with |xx - q - dmin - k| <= r.
+    const int ka = std::max(0, xx - q - c.dmin - r), kb = std::min(nd - 1, xx - q - c.dmin + r);
+    if (ka <= kb) vecAdd(kb - ka + 1, h + ka, s.colsum.data() + static_cast<size_t>(xx) * dp + ka);
+  }
   needMapR(c, s, q, y);
   const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
   float rv = kNegInf, rd = 0.f;
   for (int d = c.dmin; d <= c.dmax; ++d) {
     const int x = q + d;
-    if (x < 0 || x >= c.width || s.elo_i[x] > d || s.ehi_i[x] < d) continue;
-    const int k = d - c.dmin;
-    float h = 0.f;
-    for (int xx = x - r; xx <= x + r; ++xx) {
-      ensureColumn(c, s, xx, y);
-      h += s.colsum[static_cast<size_t>(xx) * dp + k];
-    }
+    if (x < c.r || x >= c.width - c.r) continue;
+    int lo, hi;
+    if (!effectiveRange(c, x, y, &lo, &hi) || d < lo || d > hi) continue;
     needMapL(c, s, x, y);
-    const float v = nccValue(h, s.maps.mean_l[x], sr, s.maps.inv_l[x], ir);
+    const float v = nccValue(h[d - c.dmin], s.maps.mean_l[x], sr, s.maps.inv_l[x], ir);
     if (v > rv) {
       rv = v;
       rd = static_cast<float>(d);
@@ -853,7 +1116,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
 // ---------------------------------------------------------------------------------------------
 
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
-void processRow(const LevelContext& c, int y, Scratch& s) {
+__attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
   const int r = c.r;
   const int nd = c.dmax - c.dmin + 1;
@@ -866,48 +1129,51 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   uint8_t* code = c.out->code.ptr<uint8_t>(y);
   const float gmin = static_cast<float>(c.mp->gamma_min);
 
-  // Effective range of each pixel at this window: its requested range, cut so that both windows
-  // lie inside the images (empty outside [r, W - r)). Computed for every column, since the
-  // right-to-left profiles need the ranges of pixels that are not matched themselves.
-  int* elo_i = s.elo_i.data();
-  int* ehi_i = s.ehi_i.data();
-  float* elo = s.elo.data();
-  float* ehi = s.ehi.data();
-  int n_valid = 0, n_open = 0;
-  for (int x = 0; x < W; ++x) {
-    const bool inside = (x >= r) & (x < W - r);
-    int lo = std::max(rlo[x], x - (W - 1 - r));
-    int hi = std::min(rhi[x], x - r);
-    const bool ok = inside & (lo <= hi);
-    lo = ok ? lo : kEmptyLo;
-    hi = ok ? hi : kEmptyHi;
-    elo_i[x] = lo;
-    ehi_i[x] = hi;
-    elo[x] = ok ? static_cast<float>(lo) : 1e9f;
-    ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
-    n_valid += ok;
-    n_open += ok & (st[x] == 0);
+  // Open = requested range, not accepted yet. Dense when most of the row is open (the first
+  // window): then every column's range and statistics are needed and computed row-wide; sparse
+  // rows compute them where needed.
+  int n_req = 0, n_open = 0;
+  for (int x = r; x < W - r; ++x) {
+    const int req = rlo[x] <= rhi[x];
+    n_req += req;
+    n_open += req & (st[x] == 0);
   }
   if (n_open == 0) return;
-  // Dense when most of the row is still open (the first window); the maps of the whole row are
-  // needed then, otherwise they are computed where needed.
-  const bool dense = 2 * n_open >= n_valid;
+  const bool dense = 2 * n_open >= n_req;
   if (dense) {
-    for (int x = r; x < W - r; ++x) {
-      computeMapL(c, s, x, y);
-      computeMapR(c, s, x, y);
+    // Effective range of each pixel at this window: its requested range, cut so that both
+    // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
+    // matched themselves (their ranges bound the right-to-left profiles).
+    int* elo_i = s.elo_i.data();
+    int* ehi_i = s.ehi_i.data();
+    float* elo = s.elo.data();
+    float* ehi = s.ehi.data();
+    for (int x = 0; x < W; ++x) {
+      const bool inside = (x >= r) & (x < W - r);
+      int lo = std::max(rlo[x], x - (W - 1 - r));
+      int hi = std::min(rhi[x], x - r);
+      const bool ok = inside & (lo <= hi);
+      lo = ok ? lo : kEmptyLo;
+      hi = ok ? hi : kEmptyHi;
+      elo_i[x] = lo;
+      ehi_i[x] = hi;
+      elo[x] = ok ? static_cast<float>(lo) : 1e9f;
+      ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
     }
+    computeRowMaps(c, s, y);
   }
-  // Active = not accepted yet, range of at least 3 values (an interior maximum needs two
+  // Active = open, effective range of at least 3 values (an interior maximum needs two
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
   for (int x = r; x < W - r; ++x) {
-    if (elo_i[x] > ehi_i[x] || st[x] != 0) continue;
-    if (ehi_i[x] - elo_i[x] < 2) {
+    if (st[x] != 0 || rlo[x] > rhi[x]) continue;
+    int lo, hi;
+    if (!effectiveRange(c, x, y, &lo, &hi)) continue;
+    if (hi - lo < 2) {
       code[x] = kCodeNoPeak;
       continue;
     }
-    if (!dense) needMapL(c, s, x, y);
+    if (!dense) needGammaL(c, s, x, y);
     if (!(s.maps.gamma_l[x] > gmin)) {
       code[x] = kCodeRejectStructure;
       continue;
@@ -936,13 +1202,17 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
     std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
-    s.pick.clear();
-    for (int x = r; x < W - r; ++x) {
-      if (elo_i[x] <= ehi_i[x]) s.pick.push_back(x);
-    }
-    buildIntervals(c, s, s.pick);
-    for (int k = 0; k < nd; ++k) {
-      denseSlices(c, s, k, y, s.ivs.data() + s.iv_start[k], s.iv_start[k + 1] - s.iv_start[k]);
+    if (c.uniform_ranges) {
+      denseUniformRow(c, s, y);
+    } else {
+      s.pick.clear();
+      for (int x = r; x < W - r; ++x) {
+        if (s.elo_i[x] <= s.ehi_i[x]) s.pick.push_back(x);
+      }
+      buildIntervals(c, s, s.pick);
+      for (int k = 0; k < nd; ++k) {
+        denseSlices(c, s, k, y, s.ivs.data() + s.iv_start[k], s.iv_start[k + 1] - s.iv_start[k]);
+      }
     }
   } else {
     sparseProfiles(c, s, y);
@@ -951,7 +1221,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     for (int x : s.active) {
       if (s.best[x] == kNegInf) continue;
       const int q = x - static_cast<int>(s.best_d[x]);
-      needMapR(c, s, q, y);
+      needGammaR(c, s, q, y);
       if (!(s.maps.gamma_r[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < min_ncc) {
         continue;
       }
@@ -960,6 +1230,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     std::sort(s.cand_q.begin(), s.cand_q.end());
     s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
     for (int q : s.cand_q) sparseRightToLeft(c, s, q, y);
+    g_sp.act += s.active.size(); g_sp.cand += s.cand_q.size();
   }
 
   // Decide each active pixel, criteria in the paper's order.
@@ -975,7 +1246,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
-    if (!dense) needMapR(c, s, q, y);
+    if (!dense) needGammaR(c, s, q, y);
     if (!(s.maps.gamma_r[q] > gmin)) {
       code[x] = kCodeRejectStructure;
       continue;
@@ -1171,6 +1442,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
     im.range_hi.setTo(mp.max_disparity);
   }
   out.stats.prior_pixels = prior_pixels;
+  const bool uniform = !(range && !range->empty());
 
   im.state.create(H, W, CV_8UC1);
   im.state.setTo(0);
@@ -1182,7 +1454,9 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
-    const LevelContext c{&mp, &im, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
+    timespec dbg_t0{};
+    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &dbg_t0);
+    const LevelContext c{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
                          &im.state, &im.window_idx, &out};
     cv::parallel_for_(cv::Range(0, num_stripes), [&](const cv::Range& rg) {
       std::unique_ptr<Scratch> s = im.acquire();
@@ -1194,6 +1468,11 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       }
       im.release(std::move(s));
     }, num_stripes);
+    if (getenv("ES_DBG")) {
+      timespec t{};
+      clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
+      fprintf(stderr, "level %d cpu %.1f ms\n", level, (t.tv_sec - dbg_t0.tv_sec) * 1e3 + (t.tv_nsec - dbg_t0.tv_nsec) * 1e-6);
+    }
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4);

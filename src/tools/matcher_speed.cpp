@@ -61,6 +61,7 @@ double timeMs(F&& f, std::vector<double>* cpu = nullptr) {
 
 int main(int argc, char** argv) {
   int frames = 15, threads = 0, width = 960, height = 540, window_max = 0;
+  bool run_full = true, run_prior = true;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::atoi(argv[++i]) : 0; };
@@ -69,6 +70,8 @@ int main(int argc, char** argv) {
     else if (a == "--width") width = next();
     else if (a == "--height") height = next();
     else if (a == "--window-max") window_max = next();
+    else if (a == "--only-full") run_prior = false;
+    else if (a == "--only-prior") run_full = false;
     else {
       std::fprintf(stderr, "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] [--window-max W]\n");
       return 2;
@@ -115,7 +118,7 @@ int main(int argc, char** argv) {
   matcher.compute(scene.left, scene.right, res);
   sgbm->compute(scene.left, scene.right, sg_disp);
   std::vector<double> t_ours, t_sgbm, t_prior, t_match, t_filter, c_ours, c_sgbm, c_prior;
-  for (int i = 0; i < frames; ++i) {
+  for (int i = 0; i < frames && run_full; ++i) {
     t_sgbm.push_back(timeMs([&] { sgbm->compute(scene.left, scene.right, sg_disp); }, &c_sgbm));
     t_ours.push_back(timeMs([&] { matcher.compute(scene.left, scene.right, res); }, &c_ours));
     t_match.push_back(res.stats.match_ms);
@@ -123,7 +126,7 @@ int main(int argc, char** argv) {
   }
   const es::DisparityScore full_score =
       es::scoreDisparity(res.disparity, scene.disparity, scene.occluded == 0);
-  for (int i = 0; i < frames; ++i) {
+  for (int i = 0; i < frames && run_prior; ++i) {
     t_prior.push_back(
         timeMs([&] { matcher.compute(scene.left, scene.right, res, &range); }, &c_prior));
   }
