@@ -94,6 +94,9 @@ std::string MatcherParams::validate() const {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
+inline double thrMs() { timespec t{}; clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t); return t.tv_sec * 1e3 + t.tv_nsec * 1e-6; }
+struct PhDbg { double ph[12] = {0}; ~PhDbg() { if (getenv("ES_DBG")) fprintf(stderr, "phases: select %.1f hot %.1f prof %.1f rlcand %.1f rl %.1f decide %.1f dense %.1f count %.1f mapsdense %.1f mapssparse %.1f\n", ph[0], ph[1], ph[2], ph[3], ph[4], ph[5], ph[6], ph[7], ph[8], ph[9]); } };
+thread_local PhDbg g_ph;
 struct SpDbg { std::atomic<long> act{0}, cand{0}, fresh{0}, run{0}, mapl{0}, mapr{0}; ~SpDbg(){ if (getenv("ES_DBG")) fprintf(stderr, "sparse: active %ld cand %ld fresh cols %ld running cols %ld mapL %ld mapR %ld\n", act.load(), cand.load(), fresh.load(), run.load(), mapl.load(), mapr.load()); } };
 SpDbg g_sp;
 // Fixed stripes of rows, so the work split never depends on the thread count.
@@ -124,6 +127,7 @@ struct RowMaps {
   std::vector<float> inv_r;
   std::vector<float> gamma_l;  // stdev of the Laplacian over the window
   std::vector<float> gamma_r;
+  std::vector<float> sum_r_rev, inv_r_rev;  // mirrored: index W - 1 - x
   std::vector<int> stamp_l, stamp_r, stamp_gl, stamp_gr;  // sparse rows: computed for this stamp
 };
 
@@ -146,7 +150,8 @@ struct Scratch {
   std::vector<int> block_a, block_b, blocks, active, pick, cand_q;
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
   std::vector<float> colsum;
-  std::vector<int> col_row;
+  std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
+  std::vector<int> req_stamp, req_k0, req_k1;
   std::vector<float> hvec, prof;
   std::vector<double> dbl_a, dbl_b;
   // Row state.
@@ -165,7 +170,7 @@ struct Scratch {
     valid.assign(nd, VValidity{});
     for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &act, &p1, &p2, &best, &best_d, &best_l,
                       &best_r, &second, &rb_v, &rb_d, &maps.mean_l, &maps.inv_l, &maps.sum_r,
-                      &maps.inv_r, &maps.gamma_l, &maps.gamma_r}) {
+                      &maps.inv_r, &maps.gamma_l, &maps.gamma_r, &maps.sum_r_rev, &maps.inv_r_rev}) {
       vec->assign(w + 64, 0.f);
     }
     maps.stamp_l.assign(w, -1);
@@ -182,6 +187,14 @@ struct Scratch {
     block_b.assign(nb, 0);
     colsum.assign(static_cast<size_t>(w) * dpad, 0.f);
     col_row.assign(w, -10);
+    col_k0.assign(w, 0);
+    col_k1.assign(w, -1);
+    col_used.assign(w, -10);
+    col_done.assign(w, -1);
+    req_stamp.assign(w, -1);
+    req_k0.assign(w, 0);
+    req_k1.assign(w, -1);
+    hot.reserve(w);
     hvec.assign(dpad, 0.f);
     dbl_a.assign(w + 64, 0.0);
     dbl_b.assign(w + 64, 0.0);
@@ -195,6 +208,7 @@ struct Scratch {
       vv.prev.clear();
     }
     std::fill(col_row.begin(), col_row.end(), -10);
+    hot.clear();
     uniform_row = -10;
   }
 };
@@ -610,13 +624,15 @@ inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
 
 /// Left statistics of column x of row y (inside the border), into s.maps. The same expressions
 /// as statsRow/gammaRow, so lazily and row-wide computed values are identical.
+// n * sum(x^2) - sum(x)^2 is exact in double (integers below 2^53); the rest runs in float,
+// which vectorises twice as wide. Every path uses these two functions, so values agree.
 inline float invStd(double n, double sum, double sq) {
-  const double a = n * sq - sum * sum;  // exact: integers below 2^53
-  return a > 0.5 ? static_cast<float>(std::sqrt(n / a)) : 0.f;
+  const double a = n * sq - sum * sum;
+  return a > 0.5 ? 1.f / std::sqrt(static_cast<float>(a) / static_cast<float>(n)) : 0.f;
 }
 inline float gammaOf(double n, double sum, double sq) {
-  const double m = sum / n;
-  return static_cast<float>(std::sqrt(std::max(0.0, sq / n - m * m)));
+  const double a = n * sq - sum * sum;  // n^2 times the variance of the Laplacian
+  return std::sqrt(std::max(0.f, static_cast<float>(a))) / static_cast<float>(n);
 }
 
 inline void computeMapL(const LevelContext& c, Scratch& s, int x, int y) {
@@ -668,8 +684,15 @@ ES_KERNEL void gammaRow(int x0, int x1, double n, const double* sum, const doubl
 }
 
 /// All statistics of row y (columns r .. W - 1 - r), as computeMapL/R give them one by one.
-void computeRowMaps(const LevelContext& c, Scratch& s, int y) {
-  const int r = c.r, x0 = r, x1 = c.width - 1 - r;
+/// With @p with_gamma false only the NCC statistics are computed, on columns [x0, x1] (the
+/// structure values are then computed lazily where needed).
+void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = true, int x0 = -1,
+                    int x1 = -1) {
+  const int r = c.r;
+  if (x0 < 0) {
+    x0 = r;
+    x1 = c.width - 1 - r;
+  }
   const double n = static_cast<double>(c.w) * c.w;
   double* a = s.dbl_a.data();
   double* b = s.dbl_b.data();
@@ -679,6 +702,15 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y) {
   boxRow<int>(c.im->int_r, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_r, y, r, x0, x1, b);
   statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  if (!with_gamma) {
+    // Mirrored copies for the sparse engine's profiles: R statistics at x - d for increasing d.
+    const int W = c.width;
+    for (int x = x0; x <= x1; ++x) {
+      s.maps.sum_r_rev[W - 1 - x] = s.maps.sum_r[x];
+      s.maps.inv_r_rev[W - 1 - x] = s.maps.inv_r[x];
+    }
+    return;
+  }
   boxRow<double>(c.im->int_lap_l, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_lap_l, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_l.data());
@@ -981,29 +1013,133 @@ void denseUniformRow(const LevelContext& c, Scratch& s, int y) {
 // Sparse engine.
 // ---------------------------------------------------------------------------------------------
 
-/// Make column x's vertical window sums (all disparities, [dpad]) valid for row y: running update
-/// from row y - 1 when that is what it holds, else summed afresh. The right image is read
-/// mirrored, so R(y', x - d) for d = dmin, dmin + 1, ... is contiguous.
-__attribute__((noinline)) void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
-  if (s.col_row[x] == y) return;
-  if (s.col_row[x] == y - 1) g_sp.run++; else g_sp.fresh++;
+/// The disparity indices [k0, k1] column x's sums must hold at row y: the union of the effective
+/// ranges of the pixels whose windows contain the column (the only NCC values it feeds), widened
+/// to whole 8-lane groups. Cached per row.
+inline void columnRequest(const LevelContext& c, Scratch& s, int x, int y, int* k0, int* k1) {
+  if (s.req_stamp[x] == s.stamp) {
+    *k0 = s.req_k0[x];
+    *k1 = s.req_k1[x];
+    return;
+  }
+  int lo, hi;
+  if (c.uniform_ranges) {
+    lo = std::max(c.dmin, x - c.width + 1);
+    hi = std::min(c.dmax, x);
+  } else {
+    lo = std::numeric_limits<int>::max();
+    hi = std::numeric_limits<int>::min();
+    for (int xx = std::max(c.r, x - c.r); xx <= std::min(c.width - 1 - c.r, x + c.r); ++xx) {
+      int a, b;
+      if (!effectiveRange(c, xx, y, &a, &b)) continue;
+      lo = std::min(lo, a);
+      hi = std::max(hi, b);
+    }
+    if (lo > hi) lo = hi = c.dmin;
+  }
+  *k0 = ((lo - c.dmin) / 8) * 8;
+  *k1 = std::min(s.dpad - 1, ((hi - c.dmin) / 8) * 8 + 7);
+  s.req_stamp[x] = s.stamp;
+  s.req_k0[x] = *k0;
+  s.req_k1[x] = *k1;
+}
+
+/// Running update of column x's sums from row y - 1 to row y, over its held window.
+inline void columnRunning(const LevelContext& c, Scratch& s, int x, int y) {
   const int r = c.r;
-  const int dp = s.dpad;
-  float* cs = s.colsum.data() + static_cast<size_t>(x) * dp;
+  const int k0 = s.col_k0[x], n = s.col_k1[x] - k0 + 1;
+  float* cs = s.colsum.data() + static_cast<size_t>(x) * s.dpad + k0;
+  // rf_rev(y', rev_pad + W - 1 - x') = rf(y', x'), so R(y', x - d) = rf_rev(y', base + k).
+  const int base = c.im->rev_pad + c.width - 1 - x + c.dmin + k0;
+  colRunning(n, cs, c.im->lf.ptr<float>(y + r)[x], c.im->rf_rev.ptr<float>(y + r) + base,
+             c.im->lf.ptr<float>(y - r - 1)[x], c.im->rf_rev.ptr<float>(y - r - 1) + base);
+  s.col_row[x] = y;
+}
+
+/// Make column x's vertical window sums valid for row y on the disparities it is asked for:
+/// running update from row y - 1 when that is what it holds, else summed afresh. The right image
+/// is read mirrored, so R(y', x - d) for increasing d is contiguous. A column computed afresh
+/// joins the stripe's hot columns, which are carried down by running sums while they keep being
+/// used (see updateHotColumns), so a failed region spanning many rows costs one row in and one
+/// row out per row, not a whole window.
+inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
+  if (s.col_done[x] == s.stamp) return;  // already made valid for this row's request
+  s.col_done[x] = s.stamp;
+  int k0, k1;
+  columnRequest(c, s, x, y, &k0, &k1);
+  s.col_used[x] = y;
+  const bool covers = s.col_k0[x] <= k0 && k1 <= s.col_k1[x];
+  if (s.col_row[x] == y && covers) return;
+  if (s.col_row[x] == y - 1 && covers) {
+    g_sp.run++;
+    columnRunning(c, s, x, y);
+    return;
+  }
+  g_sp.fresh++;
+  if (s.col_row[x] == y || s.col_row[x] == y - 1) {
+    k0 = std::min(k0, s.col_k0[x]);
+    k1 = std::max(k1, s.col_k1[x]);
+  }
+  const int r = c.r;
+  const int n = k1 - k0 + 1;
+  float* cs = s.colsum.data() + static_cast<size_t>(x) * s.dpad + k0;
   const cv::Mat& lf = c.im->lf;
   const cv::Mat& rr = c.im->rf_rev;
-  // rf_rev(y', rev_pad + W - 1 - x') = rf(y', x'), so R(y', x - d) = rf_rev(y', base + d).
-  const int base = c.im->rev_pad + c.width - 1 - x + c.dmin;
-  if (s.col_row[x] == y - 1) {
-    colRunning(dp, cs, lf.ptr<float>(y + r)[x], rr.ptr<float>(y + r) + base,
-               lf.ptr<float>(y - r - 1)[x], rr.ptr<float>(y - r - 1) + base);
-  } else {
-    colSet(dp, cs, lf.ptr<float>(y - r)[x], rr.ptr<float>(y - r) + base);
-    for (int yy = y - r + 1; yy <= y + r; ++yy) {
-      colAdd(dp, cs, lf.ptr<float>(yy)[x], rr.ptr<float>(yy) + base);
-    }
+  const int base = c.im->rev_pad + c.width - 1 - x + c.dmin + k0;
+  colSet(n, cs, lf.ptr<float>(y - r)[x], rr.ptr<float>(y - r) + base);
+  for (int yy = y - r + 1; yy <= y + r; ++yy) {
+    colAdd(n, cs, lf.ptr<float>(yy)[x], rr.ptr<float>(yy) + base);
   }
+  s.col_k0[x] = k0;
+  s.col_k1[x] = k1;
+  if (s.col_row[x] < y - 1) s.hot.push_back(x);
   s.col_row[x] = y;
+}
+
+/// Carry the hot columns to row y by running sums; drop those not used for a few rows (a column
+/// used once should not be carried for the rest of the stripe: a running step costs 2 products
+/// per disparity, a fresh sum w).
+ES_KERNEL void hotRunning(int count, const int* __restrict cols, int width, int rev_pad, int dmin,
+                          int dp, const int* __restrict k0, const int* __restrict k1,
+                          const float* __restrict l_in, const float* __restrict r_in,
+                          const float* __restrict l_out, const float* __restrict r_out,
+                          float* __restrict colsum) {
+  for (int i = 0; i < count; ++i) {
+    const int x = cols[i];
+    const int a = k0[x], n = k1[x] - a + 1;
+    float* __restrict cs = colsum + static_cast<size_t>(x) * dp + a;
+    const int base = rev_pad + width - 1 - x + dmin + a;
+    const float li = l_in[x], lo = l_out[x];
+    const float* __restrict ri = r_in + base;
+    const float* __restrict ro = r_out + base;
+    for (int k = 0; k < n; ++k) cs[k] += li * ri[k] - lo * ro[k];
+  }
+}
+
+void updateHotColumns(const LevelContext& c, Scratch& s, int y) {
+  const int keep = std::max(2, c.w / 4);
+  size_t out = 0;
+  for (size_t i = 0; i < s.hot.size(); ++i) {
+    const int x = s.hot[i];
+    if (s.col_row[x] != y - 1 || y - s.col_used[x] > keep) continue;
+    s.col_row[x] = y;
+    s.hot[out++] = x;
+  }
+  s.hot.resize(out);
+  if (out == 0) return;
+  const int r = c.r;
+  hotRunning(static_cast<int>(out), s.hot.data(), c.width, c.im->rev_pad, c.dmin, s.dpad,
+             s.col_k0.data(), s.col_k1.data(), c.im->lf.ptr<float>(y + r),
+             c.im->rf_rev.ptr<float>(y + r), c.im->lf.ptr<float>(y - r - 1),
+             c.im->rf_rev.ptr<float>(y - r - 1), s.colsum.data());
+}
+
+/// S(x, d) for d = lo .. lo + n - 1 of one left pixel (mean_l, inv_l) against the mirrored right
+/// statistics (index i = d - lo). The same expression as nccValue.
+ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float inv_l,
+                          const float* __restrict sum_r_rev, const float* __restrict inv_r_rev,
+                          float* __restrict out) {
+  for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l * sum_r_rev[i]) * inv_l * inv_r_rev[i];
 }
 
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1), the same rules as
@@ -1035,7 +1171,7 @@ inline void scanProfile(const float* prof, int n, int lo, float* best, float* be
 }
 
 /// Profiles of the active pixels of row y (phase A), from per-column sums.
-__attribute__((noinline)) void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
+void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
   const int r = c.r;
   const int dp = s.dpad;
   const size_t na = s.active.size();
@@ -1055,14 +1191,11 @@ __attribute__((noinline)) void sparseProfiles(const LevelContext& c, Scratch& s,
     for (int x = a; x <= b; ++x) {
       if (next <= j && s.active[next] == x) {
         ++next;
-        needMapL(c, s, x, y);
         int lo = 0, hi = -1;
         effectiveRange(c, x, y, &lo, &hi);
-        const float ml = s.maps.mean_l[x], il = s.maps.inv_l[x];
-        for (int d = lo; d <= hi; ++d) {
-          needMapR(c, s, x - d, y);
-          s.prof[d - lo] = nccValue(h[d - c.dmin], ml, s.maps.sum_r[x - d], il, s.maps.inv_r[x - d]);
-        }
+        const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
+        nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
+                   s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof.data());
         scanProfile(s.prof.data(), hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
       }
@@ -1079,32 +1212,50 @@ __attribute__((noinline)) void sparseProfiles(const LevelContext& c, Scratch& s,
 /// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
 /// The window sum of left pixel q + d at disparity d gathers column x' of the column sums at
 /// entry d for |x' - q - d| <= r; so each column adds a contiguous run of entries to the profile.
-__attribute__((noinline)) void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
+ES_KERNEL void rlAccumulate(int xa, int xb, int q, int r, int dmin, int nd, int dp,
+                            const float* __restrict colsum, const int* __restrict k0,
+                            const int* __restrict k1, float* __restrict h) {
+  for (int k = 0; k < dp; ++k) h[k] = 0.f;
+  for (int xx = xa; xx <= xb; ++xx) {
+    const int ka = std::max({0, xx - q - dmin - r, k0[xx]});
+    const int kb = std::min({nd - 1, xx - q - dmin + r, k1[xx]});
+    const float* cs = colsum + static_cast<size_t>(xx) * dp;
+    for (int k = ka; k <= kb; ++k) h[k] += cs[k];
+  }
+}
+
+ES_KERNEL void nccSpan(int n, const float* __restrict h, const float* __restrict mean_l,
+                       const float* __restrict inv_l, float sum_r, float inv_r,
+                       float* __restrict out) {
+  for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l[i] * sum_r) * inv_l[i] * inv_r;
+}
+
+void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   const int r = c.r;
-  const int dp = s.dpad;
   const int nd = c.dmax - c.dmin + 1;
   const int xa = std::max(0, q + c.dmin - r), xb = std::min(c.width - 1, q + c.dmax + r);
+  for (int xx = xa; xx <= xb; ++xx) ensureColumn(c, s, xx, y);
   float* h = s.hvec.data();
-  std::fill(h, h + dp, 0.f);
-  for (int xx = xa; xx <= xb; ++xx) {
-    ensureColumn(c, s, xx, y);
-    // Entries k with |xx - q - dmin - k| <= r.
-    const int ka = std::max(0, xx - q - c.dmin - r), kb = std::min(nd - 1, xx - q - c.dmin + r);
-    if (ka <= kb) vecAdd(kb - ka + 1, h + ka, s.colsum.data() + static_cast<size_t>(xx) * dp + ka);
-  }
-  needMapR(c, s, q, y);
+  rlAccumulate(xa, xb, q, r, c.dmin, nd, s.dpad, s.colsum.data(), s.col_k0.data(),
+               s.col_k1.data(), h);
   const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
+  // Left pixels inside the border: q + d in [r, W - 1 - r].
+  const int d0 = std::max(c.dmin, r - q), d1 = std::min(c.dmax, c.width - 1 - r - q);
   float rv = kNegInf, rd = 0.f;
-  for (int d = c.dmin; d <= c.dmax; ++d) {
-    const int x = q + d;
-    if (x < c.r || x >= c.width - c.r) continue;
-    int lo, hi;
-    if (!effectiveRange(c, x, y, &lo, &hi) || d < lo || d > hi) continue;
-    needMapL(c, s, x, y);
-    const float v = nccValue(h[d - c.dmin], s.maps.mean_l[x], sr, s.maps.inv_l[x], ir);
-    if (v > rv) {
-      rv = v;
-      rd = static_cast<float>(d);
+  if (d0 <= d1) {
+    float* v = s.prof.data();
+    nccSpan(d1 - d0 + 1, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0,
+            s.maps.inv_l.data() + q + d0, sr, ir, v);
+    for (int d = d0; d <= d1; ++d) {
+      if (!c.uniform_ranges) {
+        // With a full search every left pixel inside the border has d in its range.
+        int lo, hi;
+        if (!effectiveRange(c, q + d, y, &lo, &hi) || d < lo || d > hi) continue;
+      }
+      if (v[d - d0] > rv) {
+        rv = v[d - d0];
+        rd = static_cast<float>(d);
+      }
     }
   }
   s.rb_v[q] = rv;
@@ -1116,12 +1267,14 @@ __attribute__((noinline)) void sparseRightToLeft(const LevelContext& c, Scratch&
 // ---------------------------------------------------------------------------------------------
 
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
-__attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch& s) {
+void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
   const int r = c.r;
   const int nd = c.dmax - c.dmin + 1;
   if (y < r || y >= c.height - r) return;
   ++s.stamp;
+  double tph = thrMs();
+  auto lap = [&](int i) { const double t = thrMs(); g_ph.ph[i] += t - tph; tph = t; };
 
   const int* rlo = c.im->range_lo.ptr<int>(y);
   const int* rhi = c.im->range_hi.ptr<int>(y);
@@ -1140,6 +1293,7 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
   }
   if (n_open == 0) return;
   const bool dense = 2 * n_open >= n_req;
+  lap(7);
   if (dense) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
@@ -1161,7 +1315,20 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
       ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
     }
     computeRowMaps(c, s, y);
+  } else {
+    // The NCC statistics of the columns any open pixel's profiles or right-to-left checks can
+    // touch (within the disparity span of an open pixel), vectorised; structure values lazily.
+    int omin = W, omax = -1;
+    for (int x = r; x < W - r; ++x) {
+      if (st[x] == 0 && rlo[x] <= rhi[x]) {
+        omin = std::min(omin, x);
+        omax = x;
+      }
+    }
+    const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
+    computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
   }
+  lap(dense ? 8 : 9);
   // Active = open, effective range of at least 3 values (an interior maximum needs two
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
@@ -1180,6 +1347,7 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
     }
     s.active.push_back(x);
   }
+  lap(0);
   if (s.active.empty()) return;
   for (int x : s.active) {
     s.best[x] = s.second[x] = kNegInf;
@@ -1215,7 +1383,10 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
       }
     }
   } else {
+    updateHotColumns(c, s, y);
+    lap(1);
     sparseProfiles(c, s, y);
+    lap(2);
     // Right-to-left profiles only where a pixel passes everything but the left-right check.
     s.cand_q.clear();
     for (int x : s.active) {
@@ -1229,10 +1400,13 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
     }
     std::sort(s.cand_q.begin(), s.cand_q.end());
     s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
+    lap(3);
     for (int q : s.cand_q) sparseRightToLeft(c, s, q, y);
+    lap(4);
     g_sp.act += s.active.size(); g_sp.cand += s.cand_q.size();
   }
 
+  if (dense) lap(6);
   // Decide each active pixel, criteria in the paper's order.
   float* disp = c.out->disparity.ptr<float>(y);
   float* conf = c.out->confidence.ptr<float>(y);
@@ -1271,6 +1445,7 @@ __attribute__((noinline)) void processRow(const LevelContext& c, int y, Scratch&
     stw[x] = 1;
     widx[x] = static_cast<uint8_t>(c.level);
   }
+  lap(5);
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1292,8 +1467,21 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
     const float* d = out.disparity.ptr<float>(y);
     float* a = lo_src.ptr<float>(y);
     float* b = hi_src.ptr<float>(y);
+    static const int ks = getenv("ES_KS") ? atoi(getenv("ES_KS")) : 0;
+    static const float ts = getenv("ES_TS") ? atof(getenv("ES_TS")) : 0.5f;
+    static const int rs = getenv("ES_RS") ? atoi(getenv("ES_RS")) : 1;
     for (int x = 0; x < W; ++x) {
-      const bool v = !std::isnan(d[x]);
+      bool v = !std::isnan(d[x]);
+      if (v && ks > 0) {
+        int sup = 0;
+        for (int yy = std::max(0, y - rs); yy <= std::min(H - 1, y + rs); ++yy) {
+          const float* dd = out.disparity.ptr<float>(yy);
+          for (int xx = std::max(0, x - rs); xx <= std::min(W - 1, x + rs); ++xx) {
+            if ((yy != y || xx != x) && std::fabs(dd[xx] - d[x]) <= ts) ++sup;
+          }
+        }
+        v = sup >= ks;
+      }
       a[x] = v ? d[x] : inf;
       b[x] = v ? d[x] : -inf;
     }
@@ -1314,7 +1502,8 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
       }
     }
     if (!any) continue;
-    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(w, w));
+    static const int tplus = getenv("ES_T") ? atoi(getenv("ES_T")) : 0;
+    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(w + 2 * tplus, w + 2 * tplus));
     cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
     cv::dilate(hi_src, hi, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(-inf));
     for (int y = 0; y < H; ++y) {
@@ -1326,7 +1515,10 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
       uint8_t* rj = reject.ptr<uint8_t>(y);
       for (int x = 0; x < W; ++x) {
         if (c[x] < kCodeAcceptedBase) continue;
-        const bool straddles = d[x] - a[x] > jump || b[x] - d[x] > jump;
+        static const float j0 = getenv("ES_J0") ? atof(getenv("ES_J0")) : -1.f;
+        const float jj = (level == 0 && j0 > 0.f) ? j0 : jump;
+        static const float jhi = getenv("ES_JHI") ? atof(getenv("ES_JHI")) : -1.f;
+        const bool straddles = d[x] - a[x] > jj || b[x] - d[x] > (jhi > 0.f ? jhi : jj);
         if (!straddles) continue;
         if (jump > 0.f && k[x] == level) rj[x] = 1;
         // Near an edge (its w_min window straddles it), only windows up to limit_w may accept.

@@ -46,6 +46,8 @@ std::string TemporalParams::validate() const {
     return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
   if (refresh_period_frames < 0 || refresh_period_frames > 1000)
     return rangeMessage("refresh_period_frames", "[0, 1000]", refresh_period_frames);
+  if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))
+    return rangeMessage("min_prior_hit_share", "[0, 1]", min_prior_hit_share);
   if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
     return rangeMessage("max_gap_s", "(0, inf)", max_gap_s);
   if (fused_max_age_frames < 0 || fused_max_age_frames > 65534)
@@ -270,6 +272,16 @@ void TemporalPrior::update(const cv::Mat& disparity) {
   stats_.prior_misses = misses;
   if (have_narrowed) narrowed_.setTo(0);
   ++frame_count_;
+  // Most narrowed searches failing means the priors describe another scene: whatever a few of them
+  // accepted is suspect too, so all are dropped rather than left to fail pixel by pixel.
+  const int64_t judged = hits + misses;
+  if (params_.min_prior_hit_share > 0.0 && judged > 0 && judged >= size_.area() / 20 &&
+      double(hits) < params_.min_prior_hit_share * double(judged)) {
+    last_disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
+    age_.setTo(kAgeNone);
+    failures_.setTo(0);
+    stats_.scene_change = true;
+  }
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -423,6 +435,7 @@ void TemporalTracker::setParams(const TemporalParams& params) {
 }
 
 void TemporalTracker::reset() {
+  pending_reason_.clear();
   detector_.reset();
   prior_.reset();
   fusion_.reset();
@@ -435,12 +448,15 @@ void TemporalTracker::reset() {
 
 const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
                                                std::string* reset_reason) {
-  const std::string reason = detector_.check(info);
+  std::string reason = detector_.check(info);
   if (!reason.empty()) {
     prior_.reset();
     fusion_.reset();
     coverage_.reset();
+  } else {
+    reason = pending_reason_;
   }
+  pending_reason_.clear();
   if (reset_reason) *reset_reason = reason;
   frame_open_ = true;
   priors_used_ = false;
@@ -455,7 +471,18 @@ const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
 
 void TemporalTracker::endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage) {
   checkDisparity(disparity, "TemporalTracker::endFrame");
-  if (params_.enabled && frame_open_) prior_.update(disparity);
+  if (params_.enabled && frame_open_) {
+    prior_.update(disparity);
+    const TemporalPriorStats& s = prior_.stats();
+    if (s.scene_change) {
+      std::ostringstream os;
+      os << "scene change: " << s.prior_hits << " of " << (s.prior_hits + s.prior_misses)
+         << " narrowed searches found a disparity (< " << params_.min_prior_hit_share
+         << "); priors and fused disparities dropped";
+      pending_reason_ = os.str();
+      fusion_.reset();
+    }
+  }
   if (fuse) fusion_.update(disparity);
   if (track_coverage) coverage_.update(disparity);
   frame_open_ = false;

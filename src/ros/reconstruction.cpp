@@ -13,6 +13,7 @@
 #include <stereo_msgs/DisparityImage.h>
 #include <tf2_eigen/tf2_eigen.h>
 
+#include "endo_stereo/core/image_io.hpp"
 #include "endo_stereo/ros/conversions.hpp"
 
 namespace endo_stereo {
@@ -113,6 +114,7 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   pub_disparity_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity", 1, cb, cb);
   pub_points_ = nh_.advertise<sensor_msgs::PointCloud2>("points2", 1, cb, cb);
   pub_fused_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity_fused", 1, cb, cb);
+  pub_disparity_color_ = it_.advertise("disparity_color", 1, icb, icb);
   pub_confidence_ = it_.advertise("confidence", 1, icb, icb);
   pub_coverage_ = it_.advertise("coverage", 1, icb, icb);
   pub_left_rect_ = it_.advertise("left/image_rect_color", 1, icb, icb);
@@ -152,6 +154,7 @@ void Reconstruction::connectCb() {
   std::lock_guard<std::mutex> lock(connect_mutex_);
   const uint32_t n = pub_disparity_.getNumSubscribers() + pub_points_.getNumSubscribers() +
                      pub_fused_.getNumSubscribers() + pub_confidence_.getNumSubscribers() +
+                     pub_disparity_color_.getNumSubscribers() +
                      pub_coverage_.getNumSubscribers() + pub_left_rect_.getNumSubscribers() +
                      pub_right_rect_.getNumSubscribers();
   if (n == 0 && subscribed_) {
@@ -505,6 +508,12 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
 
   if (pub_disparity_.getNumSubscribers() > 0) {
     pub_disparity_.publish(ros_conv::toDisparityImage(out.match.disparity, g, range, header));
+  }
+  if (pub_disparity_color_.getNumSubscribers() > 0) {
+    // A fixed colour scale (the search range) keeps colours comparable from frame to frame.
+    pub_disparity_color_.publish(ros_conv::matToImage(
+        colorizeDisparity(out.match.disparity, range.min_disparity, range.max_disparity),
+        enc::BGR8, header));
   }
   if (pub_fused_.getNumSubscribers() > 0 && !out.fused_disparity.empty()) {
     pub_fused_.publish(ros_conv::toDisparityImage(out.fused_disparity, g, range, header));

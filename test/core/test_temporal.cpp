@@ -17,11 +17,13 @@ const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 cv::Mat constantDisparity(cv::Size size, float d) { return cv::Mat(size, CV_32FC1, cv::Scalar(d)); }
 
-// Priors alone: no refresh stripes and no edge zones, so every expected range is easy to state.
+// Priors alone: no refresh stripes, edge zones or scene-change test, so every expected range is
+// easy to state.
 TemporalParams plainParams() {
   TemporalParams p;
   p.refresh_period_frames = 0;
   p.prior_edge_zone_px = 0;
+  p.min_prior_hit_share = 0.0;
   return p;
 }
 
@@ -292,6 +294,42 @@ TEST(TemporalTracker, ResetsWhenTimeGoesBackOrAfterLongGap) {
   info.calibration_generation = 7;
   EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);
   EXPECT_NE(reason.find("calibration"), std::string::npos);
+}
+
+TEST(TemporalTracker, DropsPriorsWhenMostNarrowedSearchesFail) {
+  TemporalParams p = plainParams();
+  p.min_prior_hit_share = 0.5;
+  TemporalTracker tracker(p);
+  const cv::Size size(20, 20);
+  std::string reason;
+  TemporalFrameInfo info{size, 0.0, 0, 0, 63};
+  tracker.beginFrame(info, &reason);
+  tracker.endFrame(constantDisparity(size, 30.0f), true, true);
+  // 40% of the narrowed searches fail: a normal frame (a highlight, an instrument passing).
+  cv::Mat d = constantDisparity(size, 30.0f);
+  d.rowRange(0, 8).setTo(kNaN);
+  info.stamp_s = 0.04;
+  ASSERT_NE(tracker.beginFrame(info, &reason), nullptr);
+  tracker.endFrame(d, true, true);
+  EXPECT_FALSE(tracker.prior().stats().scene_change);
+  // 60% fail: the priors describe another scene; all are dropped, and the fused disparities of
+  // the old scene with them.
+  d = constantDisparity(size, 30.0f);
+  d.rowRange(0, 12).setTo(kNaN);
+  info.stamp_s = 0.08;
+  ASSERT_NE(tracker.beginFrame(info, &reason), nullptr);
+  EXPECT_EQ(reason, "");
+  tracker.endFrame(d, true, true);
+  EXPECT_TRUE(tracker.prior().stats().scene_change);
+  EXPECT_TRUE(std::isnan(tracker.fusion().disparity().at<float>(15, 5)));  // old values gone
+  info.stamp_s = 0.12;
+  EXPECT_EQ(tracker.beginFrame(info, &reason), nullptr);  // the full range everywhere
+  EXPECT_NE(reason.find("scene change"), std::string::npos);
+  EXPECT_EQ(tracker.coverage().frames(), 3);  // coverage is a statistic of the whole sequence
+  tracker.endFrame(constantDisparity(size, 30.0f), true, true);
+  info.stamp_s = 0.16;
+  EXPECT_NE(tracker.beginFrame(info, &reason), nullptr);
+  EXPECT_EQ(reason, "");
 }
 
 TEST(TemporalTracker, DisabledPriorsNeverNarrowButFusionAndCoverageRun) {

@@ -56,7 +56,7 @@ struct TemporalParams {
   /// prior discontinuity (priors in that neighbourhood spanning more than 2 * prior_radius_px)
   /// searches the span of both sides, [min - r, max + r] over the neighbourhood, so tissue that an
   /// instrument uncovers is searched at the tissue's disparity too. In [0, 64]; 0 = off.
-  int prior_edge_zone_px = 10;
+  int prior_edge_zone_px = 16;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
   /// In [1, 1000].
   int max_prior_age_frames = 3;
@@ -66,8 +66,14 @@ struct TemporalParams {
   /// Every pixel searches the full range at least once in this many frames: each frame, one in
   /// every refresh_period_frames stripes of kRefreshStripeRows rows does (in turn), so a wrong
   /// prior cannot sustain itself. A full-range search that finds nothing drops the pixel's prior.
-  /// In [0, 1000]; 0 = never refresh.
-  int refresh_period_frames = 4;
+  /// In [0, 1000]; 0 = never refresh (the default: with the matcher's guards it bought no accuracy
+  /// on the surgical sequence and costs 1/period of a full search, notes/temporal_results.md).
+  int refresh_period_frames = 0;
+  /// Scene change: when fewer than this share of the narrowed searches of a frame find a valid
+  /// disparity (normally ~95%), the priors are dropped at once and the next frame searches the
+  /// full range (a cut, a jump of the endoscope). Judged only when at least 5% of the pixels were
+  /// narrowed. In [0, 1]; 0 = off.
+  double min_prior_hit_share = 0.5;
   /// Forget the temporal state when the stamp moves forward by more than this, s. > 0.
   double max_gap_s = 0.5;
   /// Fused output: keep a pixel's most recent valid disparity for at most this many frames
@@ -123,6 +129,7 @@ struct TemporalPriorStats {
   int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
   int64_t refresh_pixels = 0;     ///< of those: in this frame's refresh stripes
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
+  bool scene_change = false;      ///< update() dropped all priors: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
   double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
@@ -160,7 +167,9 @@ class TemporalPrior {
 
   /**
    * Record the frame's final disparity (CV_32FC1, NaN invalid, the size given to buildRange()).
-   * Call once after each buildRange(); also fills the hit/miss counters of stats().
+   * Call once after each buildRange(); also fills the hit/miss counters of stats(). When the hit
+   * share of the narrowed searches falls below min_prior_hit_share, all priors are dropped
+   * (stats().scene_change).
    * @throws std::invalid_argument on a type or size mismatch.
    */
   void update(const cv::Mat& disparity);
@@ -276,7 +285,8 @@ class TemporalTracker {
 
   /**
    * Before matching a frame. Resets all state when the stream is not continuous (reason in
-   * @p reset_reason, "" otherwise).
+   * @p reset_reason, "" otherwise). A scene change detected by the previous endFrame() (priors
+   * dropped, fused disparities forgotten; coverage kept) is reported here too.
    * @return the per-pixel range to pass to RobustMatcher::compute(), or nullptr for the full
    *         range (priors disabled, first frame, just reset, or no valid prior anywhere).
    *         The pointer stays valid until the next beginFrame().
@@ -305,6 +315,7 @@ class TemporalTracker {
   SearchRange range_;
   bool priors_used_ = false;
   bool frame_open_ = false;
+  std::string pending_reason_;  // a scene change seen in endFrame(), reported by beginFrame()
 };
 
 }  // namespace endo_stereo

@@ -13,7 +13,8 @@
  *   taken as the latest one received per side, so a missing camera_info is reported instead of
  *   silently stalling a four-way synchroniser.
  * - Out: `disparity` (stereo_msgs/DisparityImage), `points2` (sensor_msgs/PointCloud2,
- *   organized), `confidence` (32FC1, [0, 1]), `disparity_fused` (DisparityImage), `coverage`
+ *   organized), `disparity_color` (bgr8 picture of the disparity for rviz and people, colour
+ *   scale = the search range, invalid black), `confidence` (32FC1, [0, 1]), `disparity_fused` (DisparityImage), `coverage`
  *   (16UC1, longest run of frames without an update), `left/image_rect_color` (bgr8),
  *   `right/image_rect` (mono8), and /diagnostics.
  *
@@ -140,7 +141,7 @@ class Reconstruction {
 
   // --- Outputs.
   ros::Publisher pub_disparity_, pub_points_, pub_fused_;
-  image_transport::Publisher pub_confidence_, pub_coverage_, pub_left_rect_, pub_right_rect_;
+  image_transport::Publisher pub_disparity_color_, pub_confidence_, pub_coverage_, pub_left_rect_, pub_right_rect_;
 
   // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
   mutable std::mutex info_mutex_;

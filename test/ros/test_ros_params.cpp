@@ -1,0 +1,136 @@
+// rostest (test/ros/ros_params.test): ROS parameters -> core structs through the same keys as
+// the YAML presets (one path: config/*.yaml -> ROS params -> structs).
+#include <gtest/gtest.h>
+#include <ros/package.h>
+#include <ros/ros.h>
+
+#include "endo_stereo/core/params_io.hpp"
+#include "endo_stereo/ros/ros_params.hpp"
+
+namespace endo_stereo {
+namespace {
+
+std::string yaml(const PipelineParams& p) { return pipelineParamsToYaml(p); }
+
+TEST(PipelineParamsFromRos, NothingSetKeepsTheDefaults) {
+  ros::NodeHandle pnh("~empty");
+  PipelineParams p;
+  EXPECT_EQ(loadPipelineParamsFromRos(pnh, p), "");
+  EXPECT_EQ(yaml(p), yaml(PipelineParams()));
+}
+
+TEST(PipelineParamsFromRos, SectionKeysAreApplied) {
+  ros::NodeHandle pnh("~set");
+  pnh.setParam("matcher/delta_min", 0.3);
+  pnh.setParam("matcher/subpixel", false);
+  pnh.setParam("matcher/max_disparity", 47);
+  pnh.setParam("temporal/max_gap_s", 2);  // an int where a double is expected is fine
+  pnh.setParam("rectify/mode", std::string("uncalibrated"));
+  PipelineParams p;
+  ASSERT_EQ(loadPipelineParamsFromRos(pnh, p), "");
+  EXPECT_DOUBLE_EQ(p.matcher.delta_min, 0.3);
+  EXPECT_FALSE(p.matcher.subpixel);
+  EXPECT_EQ(p.matcher.max_disparity, 47);
+  EXPECT_DOUBLE_EQ(p.temporal.max_gap_s, 2.0);
+  EXPECT_EQ(p.rectify.mode, RectifyMode::kUncalibrated);
+}
+
+TEST(PipelineParamsFromRos, RosparamLoadOfAPresetEqualsTheYamlLoader) {
+  // The .test file loads config/default.yaml and config/paper.yaml with <rosparam command="load">
+  // as a launch file does; the structs must equal what the CLI's YAML loader makes of the files.
+  const std::string pkg = ros::package::getPath("endo_stereo");
+  for (const std::string preset : {"default", "paper"}) {
+    ros::NodeHandle pnh("~" + preset);
+    PipelineParams from_ros, from_yaml;
+    ASSERT_EQ(loadPipelineParamsFromRos(pnh, from_ros), "") << preset;
+    ASSERT_EQ(loadPipelineParams(pkg + "/config/" + preset + ".yaml", from_yaml), "") << preset;
+    EXPECT_EQ(yaml(from_ros), yaml(from_yaml)) << preset;
+  }
+}
+
+TEST(PipelineParamsFromRos, ConfigFileThenOverrides) {
+  ros::NodeHandle pnh("~file");
+  pnh.setParam("config_file", ros::package::getPath("endo_stereo") + "/config/paper.yaml");
+  pnh.setParam("matcher/window_max_px", 23);
+  PipelineParams p, paper;
+  ASSERT_EQ(loadPipelineParamsFromRos(pnh, p), "");
+  ASSERT_EQ(loadPipelineParams(ros::package::getPath("endo_stereo") + "/config/paper.yaml", paper), "");
+  EXPECT_EQ(p.matcher.window_max_px, 23);
+  paper.matcher.window_max_px = 23;
+  EXPECT_EQ(yaml(p), yaml(paper));
+}
+
+TEST(PipelineParamsFromRos, UnknownKeyIsAnErrorNamingIt) {
+  ros::NodeHandle pnh("~typo");
+  pnh.setParam("matcher/delta_mni", 0.3);
+  PipelineParams p;
+  const std::string before = yaml(p);
+  const std::string e = loadPipelineParamsFromRos(pnh, p);
+  EXPECT_NE(e.find("matcher/delta_mni"), std::string::npos) << e;
+  EXPECT_EQ(yaml(p), before);
+}
+
+TEST(PipelineParamsFromRos, WrongTypeIsAnError) {
+  ros::NodeHandle pnh("~type");
+  pnh.setParam("matcher/max_disparity", std::string("many"));
+  PipelineParams p;
+  const std::string e = loadPipelineParamsFromRos(pnh, p);
+  EXPECT_NE(e.find("matcher/max_disparity"), std::string::npos) << e;
+  ros::NodeHandle pnh2("~notmap");
+  pnh2.setParam("matcher", 3);
+  EXPECT_NE(loadPipelineParamsFromRos(pnh2, p).find("expected a map"), std::string::npos);
+}
+
+TEST(PipelineParamsFromRos, StoreThenLoadRoundTrips) {
+  ros::NodeHandle pnh("~store");
+  PipelineParams p;
+  p.matcher.max_disparity = 95;
+  p.filter.fill_holes = false;
+  p.rectify.mode = RectifyMode::kPassThrough;
+  p.rectify.baseline_m = 0.0045;
+  storePipelineParamsToRos(pnh, p);
+  PipelineParams back;
+  ASSERT_EQ(loadPipelineParamsFromRos(pnh, back), "");
+  EXPECT_EQ(yaml(back), yaml(p));
+}
+
+TEST(RosParamsFromRos, PlainNamesOverrideThePresetRosSection) {
+  ros::NodeHandle pnh("~ros_settings");
+  pnh.setParam("ros/approximate_sync", true);
+  pnh.setParam("ros/queue_size", 7);
+  pnh.setParam("queue_size", 3);
+  pnh.setParam("sync_tolerance_s", 0.02);
+  pnh.setParam("target_frame", std::string("world"));
+  RosParams r;
+  ASSERT_EQ(loadRosParams(pnh, r), "");
+  EXPECT_TRUE(r.approximate_sync);
+  EXPECT_EQ(r.queue_size, 3);
+  EXPECT_DOUBLE_EQ(r.sync_tolerance_s, 0.02);
+  EXPECT_EQ(r.target_frame, "world");
+  EXPECT_EQ(r.validate(), "");
+}
+
+TEST(RosParamsFromRos, WrongTypeAndRangeAreReported) {
+  ros::NodeHandle pnh("~ros_bad");
+  pnh.setParam("queue_size", 2.5);
+  RosParams r;
+  EXPECT_NE(loadRosParams(pnh, r).find("queue_size"), std::string::npos);
+  r.queue_size = 0;
+  EXPECT_NE(r.validate().find("queue_size"), std::string::npos);
+  r = RosParams();
+  r.sync_tolerance_s = 0.0;
+  EXPECT_NE(r.validate().find("sync_tolerance_s"), std::string::npos);
+  r = RosParams();
+  r.tf_timeout_s = -1.0;
+  EXPECT_NE(r.validate().find("tf_timeout_s"), std::string::npos);
+}
+
+}  // namespace
+}  // namespace endo_stereo
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, "test_ros_params");
+  ros::NodeHandle nh;
+  return RUN_ALL_TESTS();
+}
