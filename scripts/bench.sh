@@ -20,3 +20,11 @@ fi
   "$ES_ROOT/docs/precision_density.csv" "$ES_ROOT/docs/precision_density.png" ||
   echo "bench.sh: the plot could not be drawn (needs /usr/bin/python3 with matplotlib)" >&2
 echo "bench.sh: tables in out/bench/bench.md, plot in docs/precision_density.png"
+# Other components' benchmarks plug in as scripts/bench_*.sh (run in name order, no arguments).
+status=0
+for extra in "$ES_ROOT"/scripts/bench_*.sh; do
+  [ -e "$extra" ] || continue
+  echo "bench.sh: running $(basename "$extra")"
+  bash "$extra" || { echo "bench.sh: $(basename "$extra") failed" >&2; status=1; }
+done
+exit $status

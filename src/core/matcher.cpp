@@ -38,9 +38,6 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
-#include <ctime>
-#include <atomic>
-#include <cstdio>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -78,6 +75,8 @@ std::string MatcherParams::validate() const {
     msg << "matcher.delta_min = " << delta_min << " must be in [0, 2]";
   } else if (!(min_ncc >= -1.0 && min_ncc <= 1.0)) {
     msg << "matcher.min_ncc = " << min_ncc << " must be in [-1, 1] (-1 = off)";
+  } else if (!(min_ncc_narrowed >= -1.0 && min_ncc_narrowed <= 1.0)) {
+    msg << "matcher.min_ncc_narrowed = " << min_ncc_narrowed << " must be in [-1, 1] (-1 = off)";
   } else if (!(epsilon_px > 0.0) || !std::isfinite(epsilon_px)) {
     msg << "matcher.epsilon_px = " << epsilon_px << " must be finite and > 0";
   } else if (num_threads < 0) {
@@ -87,6 +86,12 @@ std::string MatcherParams::validate() const {
   } else if (!(edge_disparity_jump_px >= 0.0) || !std::isfinite(edge_disparity_jump_px)) {
     msg << "matcher.edge_disparity_jump_px = " << edge_disparity_jump_px
         << " must be finite and >= 0 (0 = off)";
+  } else if (!(edge_disparity_jump_above_px >= 0.0) ||
+             !std::isfinite(edge_disparity_jump_above_px)) {
+    msg << "matcher.edge_disparity_jump_above_px = " << edge_disparity_jump_above_px
+        << " must be finite and >= 0 (0 = same as edge_disparity_jump_px)";
+  } else if (edge_margin_px < 0 || edge_margin_px > 16) {
+    msg << "matcher.edge_margin_px = " << edge_margin_px << " must be in [0, 16]";
   }
   return msg.str();
 }
@@ -94,11 +99,6 @@ std::string MatcherParams::validate() const {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
-inline double thrMs() { timespec t{}; clock_gettime(CLOCK_THREAD_CPUTIME_ID, &t); return t.tv_sec * 1e3 + t.tv_nsec * 1e-6; }
-struct PhDbg { double ph[12] = {0}; ~PhDbg() { if (getenv("ES_DBG")) fprintf(stderr, "phases: select %.1f hot %.1f prof %.1f rlcand %.1f rl %.1f decide %.1f dense %.1f count %.1f mapsdense %.1f mapssparse %.1f\n", ph[0], ph[1], ph[2], ph[3], ph[4], ph[5], ph[6], ph[7], ph[8], ph[9]); } };
-thread_local PhDbg g_ph;
-struct SpDbg { std::atomic<long> act{0}, cand{0}, fresh{0}, run{0}, mapl{0}, mapr{0}; ~SpDbg(){ if (getenv("ES_DBG")) fprintf(stderr, "sparse: active %ld cand %ld fresh cols %ld running cols %ld mapL %ld mapR %ld\n", act.load(), cand.load(), fresh.load(), run.load(), mapl.load(), mapr.load()); } };
-SpDbg g_sp;
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
 // Column blocks used to find, per disparity, the column intervals worth computing (dense rows).
@@ -560,7 +560,7 @@ struct FrameData {
 struct RobustMatcher::Impl : FrameData {
   cv::Mat state;           // CV_8U: 0 = undecided/failed so far, 1 = accepted
   cv::Mat window_idx;      // CV_8U window index that accepted
-  cv::Mat tmp1, tmp2, tmp3, tmp4, code_before;
+  cv::Mat tmp1, tmp2, tmp3, tmp4, tmp5, code_before;
 
   std::mutex pool_mutex;
   std::vector<std::unique_ptr<Scratch>> pool;
@@ -722,14 +722,12 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
 inline void needMapL(const LevelContext& c, Scratch& s, int x, int y) {
   if (s.maps.stamp_l[x] != s.stamp) {
     computeMapL(c, s, x, y);
-    g_sp.mapl++;
     s.maps.stamp_l[x] = s.stamp;
   }
 }
 inline void needMapR(const LevelContext& c, Scratch& s, int q, int y) {
   if (s.maps.stamp_r[q] != s.stamp) {
     computeMapR(c, s, q, y);
-    g_sp.mapr++;
     s.maps.stamp_r[q] = s.stamp;
   }
 }
@@ -1071,11 +1069,9 @@ inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
   const bool covers = s.col_k0[x] <= k0 && k1 <= s.col_k1[x];
   if (s.col_row[x] == y && covers) return;
   if (s.col_row[x] == y - 1 && covers) {
-    g_sp.run++;
     columnRunning(c, s, x, y);
     return;
   }
-  g_sp.fresh++;
   if (s.col_row[x] == y || s.col_row[x] == y - 1) {
     k0 = std::min(k0, s.col_k0[x]);
     k1 = std::max(k1, s.col_k1[x]);
@@ -1193,9 +1189,18 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
         ++next;
         int lo = 0, hi = -1;
         effectiveRange(c, x, y, &lo, &hi);
-        const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
-        nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
-                   s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof.data());
+        if (c.uniform_ranges) {
+          const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
+          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
+                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof.data());
+        } else {
+          needMapL(c, s, x, y);
+          for (int d = lo; d <= hi; ++d) {
+            needMapR(c, s, x - d, y);
+            s.prof[d - lo] = nccValue(h[d - c.dmin], s.maps.mean_l[x], s.maps.sum_r[x - d],
+                                      s.maps.inv_l[x], s.maps.inv_r[x - d]);
+          }
+        }
         scanProfile(s.prof.data(), hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
       }
@@ -1242,16 +1247,25 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   // Left pixels inside the border: q + d in [r, W - 1 - r].
   const int d0 = std::max(c.dmin, r - q), d1 = std::min(c.dmax, c.width - 1 - r - q);
   float rv = kNegInf, rd = 0.f;
-  if (d0 <= d1) {
+  if (!c.uniform_ranges) {
+    needMapR(c, s, q, y);
+    const float sq = s.maps.sum_r[q], iq = s.maps.inv_r[q];
+    for (int d = d0; d <= d1; ++d) {
+      int lo, hi;
+      if (!effectiveRange(c, q + d, y, &lo, &hi) || d < lo || d > hi) continue;
+      needMapL(c, s, q + d, y);
+      const float v = nccValue(h[d - c.dmin], s.maps.mean_l[q + d], sq, s.maps.inv_l[q + d], iq);
+      if (v > rv) {
+        rv = v;
+        rd = static_cast<float>(d);
+      }
+    }
+  } else if (d0 <= d1) {
     float* v = s.prof.data();
     nccSpan(d1 - d0 + 1, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0,
             s.maps.inv_l.data() + q + d0, sr, ir, v);
+    // With a full search every left pixel inside the border has d in its range.
     for (int d = d0; d <= d1; ++d) {
-      if (!c.uniform_ranges) {
-        // With a full search every left pixel inside the border has d in its range.
-        int lo, hi;
-        if (!effectiveRange(c, q + d, y, &lo, &hi) || d < lo || d > hi) continue;
-      }
       if (v[d - d0] > rv) {
         rv = v[d - d0];
         rd = static_cast<float>(d);
@@ -1273,8 +1287,6 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   const int nd = c.dmax - c.dmin + 1;
   if (y < r || y >= c.height - r) return;
   ++s.stamp;
-  double tph = thrMs();
-  auto lap = [&](int i) { const double t = thrMs(); g_ph.ph[i] += t - tph; tph = t; };
 
   const int* rlo = c.im->range_lo.ptr<int>(y);
   const int* rhi = c.im->range_hi.ptr<int>(y);
@@ -1293,7 +1305,6 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   }
   if (n_open == 0) return;
   const bool dense = 2 * n_open >= n_req;
-  lap(7);
   if (dense) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
@@ -1325,10 +1336,12 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
         omax = x;
       }
     }
-    const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
-    computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
+    // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
+    if (c.uniform_ranges) {
+      const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
+      computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
+    }
   }
-  lap(dense ? 8 : 9);
   // Active = open, effective range of at least 3 values (an interior maximum needs two
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
@@ -1347,7 +1360,6 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     s.active.push_back(x);
   }
-  lap(0);
   if (s.active.empty()) return;
   for (int x : s.active) {
     s.best[x] = s.second[x] = kNegInf;
@@ -1355,7 +1367,14 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   }
 
   const float delta_min = static_cast<float>(c.mp->delta_min);
-  const float min_ncc = static_cast<float>(c.mp->min_ncc);
+  const float min_ncc_full = static_cast<float>(c.mp->min_ncc);
+  const float min_ncc_narrow =
+      std::max(min_ncc_full, static_cast<float>(c.mp->min_ncc_narrowed));
+  // A pixel whose per-pixel range narrows the search has lost the competitors outside it, so its
+  // best peak must be stronger (min_ncc_narrowed): a prior must not weaken the criteria.
+  auto minNcc = [&](int x) {
+    return (rlo[x] > c.dmin || rhi[x] < c.dmax) ? min_ncc_narrow : min_ncc_full;
+  };
   // The discrimination test: best peak above min_ncc and clear of the second by more than
   // delta_min (a single peak is measured against the lowest NCC, -1).
   auto peakGap = [&](int x) {
@@ -1384,29 +1403,23 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
   } else {
     updateHotColumns(c, s, y);
-    lap(1);
     sparseProfiles(c, s, y);
-    lap(2);
     // Right-to-left profiles only where a pixel passes everything but the left-right check.
     s.cand_q.clear();
     for (int x : s.active) {
       if (s.best[x] == kNegInf) continue;
       const int q = x - static_cast<int>(s.best_d[x]);
       needGammaR(c, s, q, y);
-      if (!(s.maps.gamma_r[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < min_ncc) {
+      if (!(s.maps.gamma_r[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < minNcc(x)) {
         continue;
       }
       s.cand_q.push_back(q);
     }
     std::sort(s.cand_q.begin(), s.cand_q.end());
     s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
-    lap(3);
     for (int q : s.cand_q) sparseRightToLeft(c, s, q, y);
-    lap(4);
-    g_sp.act += s.active.size(); g_sp.cand += s.cand_q.size();
   }
 
-  if (dense) lap(6);
   // Decide each active pixel, criteria in the paper's order.
   float* disp = c.out->disparity.ptr<float>(y);
   float* conf = c.out->confidence.ptr<float>(y);
@@ -1426,7 +1439,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
       continue;
     }
     const float delta = peakGap(x);
-    if (!(delta > delta_min) || s.best[x] < min_ncc) {
+    if (!(delta > delta_min) || s.best[x] < minNcc(x)) {
       code[x] = kCodeRejectPeakGap;
       continue;
     }
@@ -1445,20 +1458,24 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     stw[x] = 1;
     widx[x] = static_cast<uint8_t>(c.level);
   }
-  lap(5);
 }
 
 // ---------------------------------------------------------------------------------------------
-// Our measure against foreground fattening: a pixel accepted with a window of width w is rejected
-// when the accepted disparities inside that same window (judged on the map before this step)
-// reach more than edge_disparity_jump_px away from its own, i.e. when its window straddles a
-// depth edge. With edge_window_max_px, pixels accepted with a wider window are also rejected when
-// their w_min window straddles an edge. Min and max over each window size are grey-level
-// erosions/dilations of the map (invalid pixels neutral), so the step is O(pixels) per window size.
+// Our measure against fattening at depth edges (see the top of this file and
+// notes/matcher_design.md). A pixel accepted with a window of width w is rejected when the accepted
+// disparities within (w - 1) / 2 + edge_margin_px of it (judged on the map before this step) go
+// more than edge_disparity_jump_px below its own, or more than edge_disparity_jump_above_px above
+// it: its window straddles a depth edge. Below = the pixel may carry a nearer surface's
+// disparity onto the farther one (the usual foreground fattening, measured as almost all of the
+// remaining errors); above = it may carry the farther surface's disparity into the nearer one's
+// edge (rarer; a looser threshold keeps the density). The margin reaches the last fattened pixels
+// whose own window just misses the surface behind. With edge_window_max_px, pixels accepted with
+// a wider window are also rejected when the w_min test fires. Min and max over each window size are
+// grey-level erosions/dilations of the map (invalid pixels neutral): O(pixels) per window size.
 // ---------------------------------------------------------------------------------------------
 void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
                           MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
-                          cv::Mat& hi) {
+                          cv::Mat& hi, cv::Mat& reject) {
   const int H = out.disparity.rows, W = out.disparity.cols;
   const float inf = std::numeric_limits<float>::infinity();
   lo_src.create(H, W, CV_32F);
@@ -1467,74 +1484,91 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
     const float* d = out.disparity.ptr<float>(y);
     float* a = lo_src.ptr<float>(y);
     float* b = hi_src.ptr<float>(y);
-    static const int ks = getenv("ES_KS") ? atoi(getenv("ES_KS")) : 0;
-    static const float ts = getenv("ES_TS") ? atof(getenv("ES_TS")) : 0.5f;
-    static const int rs = getenv("ES_RS") ? atoi(getenv("ES_RS")) : 1;
     for (int x = 0; x < W; ++x) {
-      bool v = !std::isnan(d[x]);
-      if (v && ks > 0) {
-        int sup = 0;
-        for (int yy = std::max(0, y - rs); yy <= std::min(H - 1, y + rs); ++yy) {
-          const float* dd = out.disparity.ptr<float>(yy);
-          for (int xx = std::max(0, x - rs); xx <= std::min(W - 1, x + rs); ++xx) {
-            if ((yy != y || xx != x) && std::fabs(dd[xx] - d[x]) <= ts) ++sup;
-          }
-        }
-        v = sup >= ks;
-      }
+      const bool v = !std::isnan(d[x]);
       a[x] = v ? d[x] : inf;
       b[x] = v ? d[x] : -inf;
     }
   }
-  const float jump = static_cast<float>(mp.edge_disparity_jump_px);
+  const bool on = mp.edge_disparity_jump_px > 0.0;
+  const float below = on ? static_cast<float>(mp.edge_disparity_jump_px) : inf;
+  const float above = !on ? inf
+                          : static_cast<float>(mp.edge_disparity_jump_above_px > 0.0
+                                                   ? mp.edge_disparity_jump_above_px
+                                                   : mp.edge_disparity_jump_px);
+  const int margin = mp.edge_margin_px;
   const int limit_w = mp.edge_window_max_px;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  // Rejections are applied after all levels are judged, so every test sees the original map.
-  cv::Mat reject(H, W, CV_8U, cv::Scalar(0));
+  // Rejections are applied after all window sizes are judged, so every test sees the same map.
+  reject.create(H, W, CV_8U);
+  reject.setTo(0);
+  // Pixels accepted per window size (the first window: nearly all of them; the larger ones: few).
+  std::vector<std::vector<cv::Point>> by_level(num_levels);
+  for (int y = 0; y < H; ++y) {
+    const uint8_t* c = out.code.ptr<uint8_t>(y);
+    const uint8_t* k = window_idx.ptr<uint8_t>(y);
+    for (int x = 0; x < W; ++x) {
+      if (c[x] >= kCodeAcceptedBase) by_level[k[x]].push_back(cv::Point(x, y));
+    }
+  }
+  auto straddles = [&](float d, float a, float b) { return d - a > below || b - d > above; };
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
-    bool any = level == 0 && limit_w > 0;
-    for (int y = 0; y < H && !any; ++y) {
-      const uint8_t* c = out.code.ptr<uint8_t>(y);
-      const uint8_t* k = window_idx.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (c[x] >= kCodeAcceptedBase && k[x] == level) { any = true; break; }
+    const int half = w / 2 + margin;
+    const int side = 2 * half + 1;
+    // The w_min test also serves edge_window_max_px for the pixels of every window size.
+    const bool all_levels = level == 0 && limit_w > 0;
+    const size_t count = all_levels ? out.stats.total_pixels : by_level[level].size();
+    if (count == 0) continue;
+    auto judge = [&](int x, int y, float a, float b) {
+      const float d = out.disparity.at<float>(y, x);
+      if (!straddles(d, a, b)) return;
+      const int k = window_idx.at<uint8_t>(y, x);
+      if (k == level) reject.at<uint8_t>(y, x) = 1;
+      if (all_levels && mp.window_min_px + k * mp.window_step_px > limit_w) {
+        reject.at<uint8_t>(y, x) = 1;
       }
-    }
-    if (!any) continue;
-    static const int tplus = getenv("ES_T") ? atoi(getenv("ES_T")) : 0;
-    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(w + 2 * tplus, w + 2 * tplus));
-    cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
-    cv::dilate(hi_src, hi, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(-inf));
-    for (int y = 0; y < H; ++y) {
-      const float* d = out.disparity.ptr<float>(y);
-      const uint8_t* c = out.code.ptr<uint8_t>(y);
-      const uint8_t* k = window_idx.ptr<uint8_t>(y);
-      const float* a = lo.ptr<float>(y);
-      const float* b = hi.ptr<float>(y);
-      uint8_t* rj = reject.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (c[x] < kCodeAcceptedBase) continue;
-        static const float j0 = getenv("ES_J0") ? atof(getenv("ES_J0")) : -1.f;
-        const float jj = (level == 0 && j0 > 0.f) ? j0 : jump;
-        static const float jhi = getenv("ES_JHI") ? atof(getenv("ES_JHI")) : -1.f;
-        const bool straddles = d[x] - a[x] > jj || b[x] - d[x] > (jhi > 0.f ? jhi : jj);
-        if (!straddles) continue;
-        if (jump > 0.f && k[x] == level) rj[x] = 1;
-        // Near an edge (its w_min window straddles it), only windows up to limit_w may accept.
-        if (level == 0 && limit_w > 0 && mp.window_min_px + k[x] * mp.window_step_px > limit_w) {
-          rj[x] = 1;
+    };
+    if (count * side * side > static_cast<size_t>(H) * W * 8) {
+      // Many pixels: separable erosion and dilation of the whole map.
+      const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side));
+      cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
+      cv::dilate(hi_src, hi, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(-inf));
+      for (int y = 0; y < H; ++y) {
+        const uint8_t* c = out.code.ptr<uint8_t>(y);
+        const uint8_t* k = window_idx.ptr<uint8_t>(y);
+        const float* a = lo.ptr<float>(y);
+        const float* b = hi.ptr<float>(y);
+        for (int x = 0; x < W; ++x) {
+          if (c[x] >= kCodeAcceptedBase && (all_levels || k[x] == level)) judge(x, y, a[x], b[x]);
         }
+      }
+    } else {
+      // Few pixels: scan each one's window directly.
+      for (const cv::Point& p : by_level[level]) {
+        float a = inf, b = -inf;
+        for (int yy = std::max(0, p.y - half); yy <= std::min(H - 1, p.y + half); ++yy) {
+          const float* ls = lo_src.ptr<float>(yy);
+          const float* hs = hi_src.ptr<float>(yy);
+          for (int xx = std::max(0, p.x - half); xx <= std::min(W - 1, p.x + half); ++xx) {
+            a = std::min(a, ls[xx]);
+            b = std::max(b, hs[xx]);
+          }
+        }
+        judge(p.x, p.y, a, b);
       }
     }
   }
   for (int y = 0; y < H; ++y) {
     const uint8_t* rj = reject.ptr<uint8_t>(y);
+    float* d = out.disparity.ptr<float>(y);
+    float* cf = out.confidence.ptr<float>(y);
+    uint8_t* c = out.code.ptr<uint8_t>(y);
     for (int x = 0; x < W; ++x) {
       if (!rj[x]) continue;
-      out.disparity.at<float>(y, x) = nan;
-      out.confidence.at<float>(y, x) = 0.f;
-      out.code.at<uint8_t>(y, x) = kCodeRejectEdge;
+      d[x] = nan;
+      cf[x] = 0.f;
+      c[x] = kCodeRejectEdge;
     }
   }
 }
@@ -1646,8 +1680,6 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
-    timespec dbg_t0{};
-    clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &dbg_t0);
     const LevelContext c{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
                          &im.state, &im.window_idx, &out};
     cv::parallel_for_(cv::Range(0, num_stripes), [&](const cv::Range& rg) {
@@ -1660,14 +1692,10 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       }
       im.release(std::move(s));
     }, num_stripes);
-    if (getenv("ES_DBG")) {
-      timespec t{};
-      clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &t);
-      fprintf(stderr, "level %d cpu %.1f ms\n", level, (t.tv_sec - dbg_t0.tv_sec) * 1e3 + (t.tv_nsec - dbg_t0.tv_nsec) * 1e-6);
-    }
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
-    rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4);
+    rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4,
+                         im.tmp5);
   }
   const auto t1 = std::chrono::steady_clock::now();
 

@@ -161,7 +161,7 @@ const std::vector<Entry>& table() {
   using PP = PipelineParams;
   static const std::vector<Entry> entries = [] {
     std::vector<Entry> t;
-    // --- matcher -------------------------------------------------------------------------------
+    // --- matcher ---------------------------------------------------------------------------------
     t.push_back(field("matcher", "min_disparity", &PP::matcher, &MatcherParams::min_disparity));
     t.push_back(field("matcher", "max_disparity", &PP::matcher, &MatcherParams::max_disparity));
     t.push_back(field("matcher", "window_min_px", &PP::matcher, &MatcherParams::window_min_px));
@@ -171,13 +171,18 @@ const std::vector<Entry>& table() {
     t.push_back(field("matcher", "delta_min", &PP::matcher, &MatcherParams::delta_min));
     t.push_back(field("matcher", "epsilon_px", &PP::matcher, &MatcherParams::epsilon_px));
     t.push_back(field("matcher", "min_ncc", &PP::matcher, &MatcherParams::min_ncc));
+    t.push_back(
+        field("matcher", "min_ncc_narrowed", &PP::matcher, &MatcherParams::min_ncc_narrowed));
     t.push_back(field("matcher", "subpixel", &PP::matcher, &MatcherParams::subpixel));
     t.push_back(field("matcher", "num_threads", &PP::matcher, &MatcherParams::num_threads));
     t.push_back(
         field("matcher", "edge_window_max_px", &PP::matcher, &MatcherParams::edge_window_max_px));
     t.push_back(field("matcher", "edge_disparity_jump_px", &PP::matcher,
                       &MatcherParams::edge_disparity_jump_px));
-    // --- filter --------------------------------------------------------------------------------
+    t.push_back(field("matcher", "edge_disparity_jump_above_px", &PP::matcher,
+                      &MatcherParams::edge_disparity_jump_above_px));
+    t.push_back(field("matcher", "edge_margin_px", &PP::matcher, &MatcherParams::edge_margin_px));
+    // --- filter ----------------------------------------------------------------------------------
     t.push_back(
         field("filter", "remove_outliers", &PP::filter, &PostFilterParams::remove_outliers));
     t.push_back(
@@ -189,7 +194,7 @@ const std::vector<Entry>& table() {
     t.push_back(field("filter", "fill_holes", &PP::filter, &PostFilterParams::fill_holes));
     t.push_back(
         field("filter", "fill_max_hole_px", &PP::filter, &PostFilterParams::fill_max_hole_px));
-    // --- preprocess ----------------------------------------------------------------------------
+    // --- preprocess ------------------------------------------------------------------------------
     t.push_back(field("preprocess", "downsample", &PP::preprocess, &PreprocessParams::downsample));
     t.push_back(enumField("preprocess", "interlace", &PP::preprocess, &PreprocessParams::interlace,
                           {{"none", InterlaceMode::kNone},
@@ -199,7 +204,7 @@ const std::vector<Entry>& table() {
         field("preprocess", "field_parity", &PP::preprocess, &PreprocessParams::field_parity));
     t.push_back(
         field("preprocess", "mono16_bits", &PP::preprocess, &PreprocessParams::mono16_bits));
-    // --- rectify -------------------------------------------------------------------------------
+    // --- rectify ---------------------------------------------------------------------------------
     t.push_back(enumField("rectify", "mode", &PP::rectify, &RectifyParams::mode,
                           {{"calibrated", RectifyMode::kCalibrated},
                            {"uncalibrated", RectifyMode::kUncalibrated},
@@ -238,7 +243,7 @@ const std::vector<Entry>& table() {
     t.push_back(field("rectify", "quality_warn_px", &PP::rectify, &RectifyParams::quality_warn_px));
     t.push_back(field("rectify", "quality_max_features", &PP::rectify,
                       &RectifyParams::quality_max_features));
-    // --- temporal ------------------------------------------------------------------------------
+    // --- temporal --------------------------------------------------------------------------------
     t.push_back(field("temporal", "enabled", &PP::temporal, &TemporalParams::enabled));
     t.push_back(
         field("temporal", "prior_radius_px", &PP::temporal, &TemporalParams::prior_radius_px));
@@ -252,12 +257,14 @@ const std::vector<Entry>& table() {
                       &TemporalParams::max_prior_failures));
     t.push_back(field("temporal", "refresh_period_frames", &PP::temporal,
                       &TemporalParams::refresh_period_frames));
+    t.push_back(field("temporal", "min_prior_hit_share", &PP::temporal,
+                      &TemporalParams::min_prior_hit_share));
     t.push_back(field("temporal", "max_gap_s", &PP::temporal, &TemporalParams::max_gap_s));
     t.push_back(field("temporal", "fused_max_age_frames", &PP::temporal,
                       &TemporalParams::fused_max_age_frames));
     t.push_back(field("temporal", "coverage_within_frames", &PP::temporal,
                       &TemporalParams::coverage_within_frames));
-    // --- output --------------------------------------------------------------------------------
+    // --- output ----------------------------------------------------------------------------------
     t.push_back(field("output", "point_cloud", &PP::output, &OutputParams::point_cloud));
     t.push_back(field("output", "fused", &PP::output, &OutputParams::fused));
     t.push_back(field("output", "coverage", &PP::output, &OutputParams::coverage));

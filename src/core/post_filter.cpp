@@ -6,6 +6,7 @@
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+#include <limits>
 #include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
@@ -52,27 +53,28 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   // denominator fixed at window^2 also at the image border, as METHOD.md writes it.
   const double need = params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;
   const cv::Mat src = disparity.clone();
+  std::vector<int> agree(cols);
   int64_t removed = 0;
   for (int y = 0; y < rows; ++y) {
     const float* s = src.ptr<float>(y);
+    std::fill(agree.begin(), agree.end(), 0);
+    // One neighbour offset at a time over the whole row: a vectorisable compare-and-count.
+    // NaN (unmatched) never compares below the tolerance, so it never agrees.
+    for (int yy = std::max(0, y - half); yy <= std::min(rows - 1, y + half); ++yy) {
+      const float* n = src.ptr<float>(yy);
+      for (int dx = -half; dx <= half; ++dx) {
+        if (yy == y && dx == 0) continue;
+        const int x0 = std::max(0, -dx), x1 = std::min(cols, cols - dx);
+        int* ag = agree.data();
+        for (int x = x0; x < x1; ++x) ag[x] += std::fabs(n[x + dx] - s[x]) < tol ? 1 : 0;
+      }
+    }
     float* dst = disparity.ptr<float>(y);
     for (int x = 0; x < cols; ++x) {
-      const float v = s[x];
-      if (std::isnan(v)) continue;
-      int agree = 0;
-      for (int yy = std::max(0, y - half); yy <= std::min(rows - 1, y + half); ++yy) {
-        const float* n = src.ptr<float>(yy);
-        for (int xx = std::max(0, x - half); xx <= std::min(cols - 1, x + half); ++xx) {
-          if (yy == y && xx == x) continue;
-          // NaN neighbours compare false: unmatched pixels never agree.
-          if (std::fabs(n[xx] - v) < tol) ++agree;
-        }
-      }
-      if (agree < need) {
-        dst[x] = std::numeric_limits<float>::quiet_NaN();
-        if (!code.empty()) code.at<uint8_t>(y, x) = kCodeRejectOutlier;
-        ++removed;
-      }
+      if (std::isnan(s[x]) || agree[x] >= need) continue;
+      dst[x] = std::numeric_limits<float>::quiet_NaN();
+      if (!code.empty()) code.at<uint8_t>(y, x) = kCodeRejectOutlier;
+      ++removed;
     }
   }
   return removed;
@@ -85,7 +87,7 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   const int rows = disparity.rows, cols = disparity.cols;
   const int max_hole = params.fill_max_hole_px;
   const cv::Mat src = disparity.clone();
-  auto valid = [&](int y, int x) { return !std::isnan(src.at<float>(y, x)); };
+  auto valid = [&](int y, int x) { return !std::isnan(src.ptr<float>(y)[x]); };
   // A hole pixel is an invalid pixel inside a horizontal or a vertical run of at most max_hole
   // invalid pixels bounded by valid pixels at both ends. Runs touching the image border are not
   // bounded and are left alone, as is anything wider: later frames fill those.

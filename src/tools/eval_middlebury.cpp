@@ -46,10 +46,13 @@ std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::s
       else if (name == "delta_min") m.delta_min = std::stod(v);
       else if (name == "epsilon_px") m.epsilon_px = std::stod(v);
       else if (name == "min_ncc") m.min_ncc = std::stod(v);
+      else if (name == "min_ncc_narrowed") m.min_ncc_narrowed = std::stod(v);
       else if (name == "subpixel") m.subpixel = parseBool(v);
       else if (name == "num_threads") m.num_threads = std::stoi(v);
       else if (name == "edge_window_max_px") m.edge_window_max_px = std::stoi(v);
       else if (name == "edge_disparity_jump_px") m.edge_disparity_jump_px = std::stod(v);
+      else if (name == "edge_disparity_jump_above_px") m.edge_disparity_jump_above_px = std::stod(v);
+      else if (name == "edge_margin_px") m.edge_margin_px = std::stoi(v);
       else return "unknown key " + key;
     } else if (sec == "filter") {
       if (name == "remove_outliers") f.remove_outliers = parseBool(v);

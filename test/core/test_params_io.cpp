@@ -5,7 +5,9 @@
 #include <algorithm>
 #include <cstdio>
 #include <fstream>
+#include <regex>
 #include <set>
+#include <sstream>
 #include <string>
 
 #include "endo_stereo/core/params_io.hpp"
@@ -214,6 +216,45 @@ TEST(ParamsIo, DefaultPresetFileEqualsTheStructDefaults) {
   const auto b = listPipelineParams(from_file);
   ASSERT_EQ(a.size(), b.size());
   for (size_t i = 0; i < a.size(); ++i) EXPECT_EQ(a[i].value, b[i].value) << a[i].key;
+}
+
+// Every field of every params struct has a key: the headers are read and each field declared
+// with a default (`type name = value;`) inside the struct body must be listed. Guards against a
+// field added to a struct but not to the table in params_io.cpp.
+TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
+  struct Source {
+    const char* header;
+    const char* strukt;
+    const char* section;
+  };
+  const Source sources[] = {{"matcher.hpp", "MatcherParams", "matcher"},
+                            {"matcher.hpp", "PostFilterParams", "filter"},
+                            {"preprocess.hpp", "PreprocessParams", "preprocess"},
+                            {"rectification.hpp", "RectifyParams", "rectify"},
+                            {"temporal.hpp", "TemporalParams", "temporal"},
+                            {"pipeline.hpp", "OutputParams", "output"}};
+  std::set<std::string> keys;
+  for (const ParamInfo& info : listPipelineParams(PipelineParams())) keys.insert(info.key);
+  for (const Source& src : sources) {
+    std::ifstream in(std::string(ES_SOURCE_DIR) + "/include/endo_stereo/core/" + src.header);
+    ASSERT_TRUE(in.good()) << src.header;
+    std::stringstream text;
+    text << in.rdbuf();
+    const std::string all = text.str();
+    const size_t begin = all.find(std::string("struct ") + src.strukt + " {");
+    ASSERT_NE(begin, std::string::npos) << src.strukt;
+    const size_t end = all.find("\n};", begin);
+    const std::string body = all.substr(begin, end - begin);
+    const std::regex field_re(R"(\n\s+[A-Za-z_:<>]+ ([a-z_0-9]+) = [^;]*;)");
+    int found = 0;
+    for (auto it = std::sregex_iterator(body.begin(), body.end(), field_re);
+         it != std::sregex_iterator(); ++it) {
+      const std::string key = std::string(src.section) + "." + (*it)[1].str();
+      EXPECT_EQ(keys.count(key), 1u) << key << " (" << src.strukt << ") has no key in params_io.cpp";
+      ++found;
+    }
+    EXPECT_GT(found, 0) << src.strukt;
+  }
 }
 
 }  // namespace

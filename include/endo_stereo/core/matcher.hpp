@@ -48,24 +48,35 @@ struct MatcherParams {
   /// Least NCC gap between the best and the second-highest peak, [0, 2].
   double delta_min = 0.1;
   /// Left-right consistency tolerance |d_LR + d_RL| < epsilon, px, > 0. Compared on the integer
-  /// peaks, so 1 means "exactly the same disparity" (paper: 5).
-  double epsilon_px = 1.0;
+  /// peaks: 1 means "the same disparity", 1.5 "within one disparity" (paper: 5).
+  double epsilon_px = 1.5;
   /// Least NCC of the best peak, [-1, 1] (ours; -1 = off). A weak best peak means the window
   /// found no real match, which matters most with a narrowed per-pixel range: there the true peak
   /// may lie outside the range, and a noise peak inside it has no competitor. Counted as a
   /// discrimination failure (kCodeRejectPeakGap).
   double min_ncc = 0.5;
+  /// Least NCC of the best peak for a pixel whose per-pixel search range is narrower than
+  /// [min_disparity, max_disparity] (ours; the larger of this and min_ncc applies). A narrowed
+  /// range has lost the competitors outside it; when it misses the true disparity its profile
+  /// holds only noise peaks. [-1, 1].
+  double min_ncc_narrowed = 0.7;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
   /// Worker threads; 0 = OpenCV's default. The output does not depend on this value.
   int num_threads = 0;
   // Ours, against window fattening at depth edges: see matcher.cpp and BENCHMARKS.md.
-  /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity
-  /// (0 = no limit). Units px.
+  /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity (its
+  /// w_min window straddles one by the test below; 0 = no limit). Units px.
   int edge_window_max_px = 0;
-  /// Reject a pixel whose accepting window straddles a disparity discontinuity: the accepted
-  /// disparities inside its window reach farther than this from its own, px (0 = off).
-  double edge_disparity_jump_px = 1.0;
+  /// Reject a pixel whose accepting window (widened by edge_margin_px) holds accepted disparities
+  /// more than this below its own: its window straddles a depth edge and it may carry the nearer
+  /// surface's disparity (foreground fattening). px, >= 0; 0 switches the whole test off.
+  double edge_disparity_jump_px = 2.0;
+  /// The same test for accepted disparities above the pixel's own (it may carry the farther
+  /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
+  double edge_disparity_jump_above_px = 6.0;
+  /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16].
+  int edge_margin_px = 2;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;

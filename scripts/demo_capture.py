@@ -1,0 +1,392 @@
+#!/usr/bin/python3
+"""Drives and records the endo_stereo demo (scripts/demo.sh) and the ROS benchmark
+(scripts/bench_ros.sh). Runs with /usr/bin/python3 (the ROS Python modules), numpy and matplotlib.
+
+Subcommands:
+  paced  --bag B --ns NS --out DIR [--hold-s S]
+      Plays the bag's stereo pairs through the nodelet one at a time: pair k+1 is published once
+      the disparity of pair k came back (or a timeout), so every frame is processed and the
+      pictures (disparity, coverage, cloud) show what the method does over consecutive frames.
+      Writes DIR/disparity_color.png, left_rect.png, coverage.png, cloud.ply, cloud.png,
+      paced.json. Then republishes the last outputs, latched, under /demo_view/ for S seconds
+      (for an rviz screenshot) and writes DIR/.view_ready.
+  listen --ns NS [--ns NS2 ...] --frames N --out FILE.json --done-file F [--timeout-s T]
+      Records, per namespace, when each input left image and each disparity arrived (wall
+      clock), while something else (rosbag play) publishes. Stops when F exists and the outputs
+      have settled. Writes per-namespace figures: pairs in, outputs, output rate, drops, median
+      and p90 latency (left image received -> disparity received, same stamp), density.
+"""
+import argparse
+import json
+import math
+import os
+import struct
+import sys
+import threading
+import time
+
+import numpy as np
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt  # noqa: E402
+
+import rosbag  # noqa: E402
+import rospy  # noqa: E402
+from diagnostic_msgs.msg import DiagnosticArray  # noqa: E402
+from sensor_msgs.msg import CameraInfo, Image, PointCloud2  # noqa: E402
+from stereo_msgs.msg import DisparityImage  # noqa: E402
+
+
+# --------------------------------------------------------------------------------------------
+# Message helpers (no cv_bridge / cv2 needed)
+# --------------------------------------------------------------------------------------------
+
+def image_to_array(msg):
+    """sensor_msgs/Image -> numpy array (bgr8, mono8, mono16, 32FC1)."""
+    kinds = {"bgr8": (np.uint8, 3), "rgb8": (np.uint8, 3), "mono8": (np.uint8, 1),
+             "mono16": (np.uint16, 1), "16UC1": (np.uint16, 1), "32FC1": (np.float32, 1)}
+    dtype, ch = kinds[msg.encoding]
+    row = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.step)
+    row = row[:, : msg.width * ch * np.dtype(dtype).itemsize]
+    a = row.copy().view(dtype).reshape(msg.height, msg.width, ch) if ch > 1 else \
+        row.copy().view(dtype).reshape(msg.height, msg.width)
+    if msg.encoding == "rgb8":
+        a = a[:, :, ::-1]
+    return a
+
+
+def disparity_to_array(msg):
+    d = image_to_array(msg.image).astype(np.float32)
+    d[d < msg.min_disparity] = np.nan
+    return d
+
+
+def cloud_to_arrays(msg):
+    """Organized x y z rgb cloud -> (H, W, 3) float xyz, (H, W, 3) uint8 rgb."""
+    offs = {f.name: f.offset for f in msg.fields}
+    raw = np.frombuffer(msg.data, dtype=np.uint8).reshape(msg.height, msg.row_step)
+    raw = raw[:, : msg.width * msg.point_step].reshape(msg.height, msg.width, msg.point_step)
+    xyz = np.stack([raw[:, :, offs[k]: offs[k] + 4].copy().view(np.float32)[:, :, 0]
+                    for k in ("x", "y", "z")], axis=-1)
+    rgb = np.zeros(xyz.shape, dtype=np.uint8)
+    if "rgb" in offs:
+        packed = raw[:, :, offs["rgb"]: offs["rgb"] + 4].copy().view(np.uint32)[:, :, 0]
+        rgb[:, :, 0] = (packed >> 16) & 0xFF
+        rgb[:, :, 1] = (packed >> 8) & 0xFF
+        rgb[:, :, 2] = packed & 0xFF
+    return xyz, rgb
+
+
+def write_ply(path, xyz, rgb):
+    ok = np.isfinite(xyz).all(axis=-1)
+    pts, col = xyz[ok].astype("<f4"), rgb[ok]
+    with open(path, "wb") as f:
+        f.write(("ply\nformat binary_little_endian 1.0\nelement vertex %d\n"
+                 "property float x\nproperty float y\nproperty float z\n"
+                 "property uchar red\nproperty uchar green\nproperty uchar blue\nend_header\n"
+                 % len(pts)).encode())
+        rec = np.zeros(len(pts), dtype=[("x", "<f4"), ("y", "<f4"), ("z", "<f4"),
+                                         ("r", "u1"), ("g", "u1"), ("b", "u1")])
+        rec["x"], rec["y"], rec["z"] = pts[:, 0], pts[:, 1], pts[:, 2]
+        rec["r"], rec["g"], rec["b"] = col[:, 0], col[:, 1], col[:, 2]
+        f.write(rec.tobytes())
+    return int(ok.sum())
+
+
+def render_cloud(path, xyz, rgb, width=960, height=720):
+    """A picture of the cloud from an oblique viewpoint (software z-buffer, no GL needed): the
+    camera orbits 35 degrees around the cloud's centre so relief and depth are visible."""
+    ok = np.isfinite(xyz).all(axis=-1)
+    p, c = xyz[ok].astype(np.float64), rgb[ok]
+    if len(p) == 0:
+        return False
+    centre = np.median(p, axis=0)
+    a = math.radians(35.0)  # orbit around the x axis (look from above the tissue)
+    b = math.radians(-20.0)  # and a little from the side
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    q = (p - centre) @ (ry @ rx).T
+    dist = 2.2 * np.ptp(p[:, 0])
+    q[:, 2] += dist
+    f = 0.9 * width
+    u = (f * q[:, 0] / q[:, 2] + width / 2).astype(np.int64)
+    v = (f * q[:, 1] / q[:, 2] + height / 2).astype(np.int64)
+    inside = (u >= 0) & (u < width - 1) & (v >= 0) & (v < height - 1) & (q[:, 2] > 0)
+    u, v, z, c = u[inside], v[inside], q[inside, 2], c[inside]
+    order = np.argsort(-z)  # far first, near points overwrite
+    img = np.full((height, width, 3), 24, dtype=np.uint8)
+    for du in (0, 1):
+        for dv in (0, 1):
+            img[v[order] + dv, u[order] + du] = c[order]
+    plt.imsave(path, img)
+    return True
+
+
+def colourise(values, vmin, vmax, cmap="turbo", invalid=None):
+    t = np.clip((values.astype(np.float64) - vmin) / max(1e-9, vmax - vmin), 0, 1)
+    rgb = (plt.get_cmap(cmap)(t)[:, :, :3] * 255).astype(np.uint8)
+    if invalid is not None:
+        rgb[invalid] = 0
+    return rgb
+
+
+def central_region(h, w):
+    ch, cw = int(round(h / math.sqrt(2))), int(round(w / math.sqrt(2)))
+    y0, x0 = (h - ch) // 2, (w - cw) // 2
+    return slice(y0, y0 + ch), slice(x0, x0 + cw)
+
+
+def diag_values(msg, nodelet):
+    want = nodelet.lstrip("/") + ": "
+    out = {}
+    for s in msg.status:
+        if s.name.startswith(want):
+            for kv in s.values:
+                out[kv.key] = kv.value
+    return out
+
+
+# --------------------------------------------------------------------------------------------
+# paced
+# --------------------------------------------------------------------------------------------
+
+def read_pairs(bag_path, ns):
+    """Stereo frames of the bag: list of dicts (left, right, left_info, right_info) by stamp."""
+    topics = {ns + "/left/image_raw": "left", ns + "/right/image_raw": "right",
+              ns + "/left/camera_info": "left_info", ns + "/right/camera_info": "right_info"}
+    frames = {}
+    with rosbag.Bag(bag_path) as bag:
+        for topic, msg, _ in bag.read_messages(topics=list(topics)):
+            frames.setdefault(msg.header.stamp, {})[topics[topic]] = msg
+    return [frames[k] for k in sorted(frames) if "left" in frames[k] and "right" in frames[k]]
+
+
+def paced(args):
+    rospy.init_node("endo_stereo_demo_player", anonymous=True, disable_signals=True)
+    ns = args.ns.rstrip("/")
+    frames = read_pairs(args.bag, ns)
+    if not frames:
+        sys.exit("no stereo pairs under %s in %s" % (ns, args.bag))
+    lock = threading.Condition()
+    last = {}
+    stamps_out = {}
+    densities = []
+
+    def keep(name):
+        def cb(msg):
+            with lock:
+                last[name] = msg
+                if name == "disparity":
+                    stamps_out[msg.header.stamp] = time.time()
+                    d = disparity_to_array(msg)
+                    densities.append(float(np.isfinite(d).mean()))
+                lock.notify_all()
+        return cb
+
+    subs = [rospy.Subscriber(ns + "/disparity", DisparityImage, keep("disparity"), queue_size=5),
+            rospy.Subscriber(ns + "/disparity_color", Image, keep("disparity_color"), queue_size=2),
+            rospy.Subscriber(ns + "/coverage", Image, keep("coverage"), queue_size=2),
+            rospy.Subscriber(ns + "/points2", PointCloud2, keep("points2"), queue_size=2,
+                             buff_size=2 ** 26),
+            rospy.Subscriber(ns + "/left/image_rect_color", Image, keep("left_rect"), queue_size=2,
+                             buff_size=2 ** 24)]
+    pub_l = rospy.Publisher(ns + "/left/image_raw", Image, queue_size=2)
+    pub_r = rospy.Publisher(ns + "/right/image_raw", Image, queue_size=2)
+    pub_li = rospy.Publisher(ns + "/left/camera_info", CameraInfo, queue_size=1, latch=True)
+    pub_ri = rospy.Publisher(ns + "/right/camera_info", CameraInfo, queue_size=1, latch=True)
+
+    # Lazy subscription: the nodelet subscribes once our output subscribers are connected.
+    deadline = time.time() + 60
+    while time.time() < deadline and (pub_l.get_num_connections() == 0 or
+                                      pub_r.get_num_connections() == 0 or
+                                      pub_li.get_num_connections() == 0):
+        time.sleep(0.05)
+    if "left_info" in frames[0]:
+        pub_li.publish(frames[0]["left_info"])
+        pub_ri.publish(frames[0]["right_info"])
+    time.sleep(0.3)  # the latched camera_info reaches the nodelet before the first pair
+
+    latencies, processed = [], 0
+    t_start = time.time()
+    for i, fr in enumerate(frames):
+        stamp = fr["left"].header.stamp
+        t0 = time.time()
+        pub_l.publish(fr["left"])
+        pub_r.publish(fr["right"])
+        with lock:
+            ok = lock.wait_for(lambda: stamp in stamps_out, timeout=args.frame_timeout_s)
+        if ok:
+            processed += 1
+            latencies.append(stamps_out[stamp] - t0)
+        sys.stdout.write("\r[demo] frame %d/%d %s" % (i + 1, len(frames),
+                                                       "ok" if ok else "no output (timeout)"))
+        sys.stdout.flush()
+    wall = time.time() - t_start
+    print()
+    time.sleep(0.5)  # the last frame's other outputs (cloud, coverage) follow the disparity
+
+    os.makedirs(args.out, exist_ok=True)
+    figures = {"frames": len(frames), "processed": processed, "wall_s": wall,
+               "width": frames[0]["left"].width, "height": frames[0]["left"].height}
+    if latencies:
+        lat = np.array(latencies) * 1e3
+        figures.update({"latency_median_ms": float(np.median(lat)),
+                        "latency_p90_ms": float(np.percentile(lat, 90)),
+                        "processing_fps": float(1e3 / np.median(lat))})
+    if densities:
+        figures.update({"density_mean": float(np.mean(densities)),
+                        "density_last": float(densities[-1])})
+    with lock:
+        snap = dict(last)
+    if "disparity_color" in snap:
+        plt.imsave(os.path.join(args.out, "disparity_color.png"),
+                   image_to_array(snap["disparity_color"])[:, :, ::-1])
+    if "left_rect" in snap:
+        plt.imsave(os.path.join(args.out, "left_rect.png"),
+                   image_to_array(snap["left_rect"])[:, :, ::-1])
+    if "coverage" in snap:
+        run = image_to_array(snap["coverage"]).astype(np.int64)
+        n = args.within_frames
+        never = run >= processed  # never updated in the frames processed
+        plt.imsave(os.path.join(args.out, "coverage.png"),
+                   colourise(np.minimum(run, 2 * n), 0, 2 * n, invalid=never))
+        cy, cx = central_region(*run.shape)
+        figures.update({
+            "coverage_within_frames": n,
+            "coverage_central_share": float((run[cy, cx] < n).mean()),
+            "coverage_overall_share": float((run < n).mean()),
+            "coverage_central_never": float(never[cy, cx].mean())})
+    if "points2" in snap:
+        xyz, rgb = cloud_to_arrays(snap["points2"])
+        figures["cloud_points"] = write_ply(os.path.join(args.out, "cloud.ply"), xyz, rgb)
+        z = xyz[:, :, 2][np.isfinite(xyz[:, :, 2])]
+        if len(z):
+            figures.update({"cloud_depth_median_m": float(np.median(z)),
+                            "cloud_depth_p5_m": float(np.percentile(z, 5)),
+                            "cloud_depth_p95_m": float(np.percentile(z, 95))})
+        render_cloud(os.path.join(args.out, "cloud.png"), xyz, rgb)
+    with open(os.path.join(args.out, "paced.json"), "w") as f:
+        json.dump(figures, f, indent=2)
+
+    # Hold the last outputs, latched, for an rviz screenshot.
+    if args.hold_s > 0 and "points2" in snap:
+        view = [rospy.Publisher("/demo_view/points2", PointCloud2, queue_size=1, latch=True),
+                rospy.Publisher("/demo_view/disparity_color", Image, queue_size=1, latch=True),
+                rospy.Publisher("/demo_view/left/image_rect_color", Image, queue_size=1, latch=True)]
+        for s in subs:
+            s.unregister()
+        for pub, key in zip(view, ("points2", "disparity_color", "left_rect")):
+            if key in snap:
+                pub.publish(snap[key])
+        open(os.path.join(args.out, ".view_ready"), "w").close()
+        end = time.time() + args.hold_s
+        while time.time() < end and not os.path.exists(os.path.join(args.out, ".view_done")):
+            # rviz's Image displays show a message only when it arrives: publish again now and then.
+            for pub, key in zip(view, ("points2", "disparity_color", "left_rect")):
+                if key in snap and pub.get_num_connections() > 0:
+                    pub.publish(snap[key])
+            time.sleep(1.0)
+    rospy.signal_shutdown("done")
+
+
+# --------------------------------------------------------------------------------------------
+# listen
+# --------------------------------------------------------------------------------------------
+
+def listen(args):
+    rospy.init_node("endo_stereo_bench_listener", anonymous=True, disable_signals=True)
+    lock = threading.Lock()
+    rec = {}
+    for ns in args.ns:
+        ns = ns.rstrip("/")
+        r = rec[ns] = {"in": {}, "out": {}, "density": [], "diag": {}}
+
+        def on_left(msg, r=r):
+            with lock:
+                r["in"].setdefault(msg.header.stamp, time.time())
+
+        def on_disp(msg, r=r):
+            t = time.time()
+            d = disparity_to_array(msg)
+            with lock:
+                r["out"][msg.header.stamp] = t
+                r["density"].append(float(np.isfinite(d).mean()))
+
+        # Header-only interest in the left images, but rospy must deserialize them anyway; the
+        # cost is the same for every peer listened to.
+        rospy.Subscriber(ns + "/left/image_raw", Image, on_left, queue_size=50, buff_size=2 ** 26)
+        rospy.Subscriber(ns + "/disparity", DisparityImage, on_disp, queue_size=50,
+                         buff_size=2 ** 26)
+
+    def on_diag(msg):
+        with lock:
+            for ns, r in rec.items():
+                for name in args.nodelet:
+                    v = diag_values(msg, name)
+                    if v and name.startswith(ns + "/"):
+                        r["diag"] = v
+
+    rospy.Subscriber("/diagnostics", DiagnosticArray, on_diag, queue_size=50)
+    open(args.ready_file, "w").close() if args.ready_file else None
+    deadline = time.time() + args.timeout_s
+    while time.time() < deadline and not os.path.exists(args.done_file):
+        time.sleep(0.1)
+    # Let the last outputs arrive: settled when nothing came for 2 s.
+    last_count, quiet_since = -1, time.time()
+    while time.time() < deadline and time.time() - quiet_since < 2.0:
+        with lock:
+            n = sum(len(r["out"]) for r in rec.values())
+        if n != last_count:
+            last_count, quiet_since = n, time.time()
+        time.sleep(0.1)
+
+    result = {}
+    with lock:
+        for ns, r in rec.items():
+            ins = sorted(r["in"])
+            outs = sorted(r["out"])
+            lat = [1e3 * (r["out"][s] - r["in"][s]) for s in outs if s in r["in"]]
+            span = (max(r["out"].values()) - min(r["out"].values())) if len(outs) > 1 else 0.0
+            in_span = (max(r["in"].values()) - min(r["in"].values())) if len(ins) > 1 else 0.0
+            res = {"frames_in_bag": args.frames, "pairs_in": len(ins), "outputs": len(outs),
+                   "dropped_or_lost": len(ins) - len(outs),
+                   "input_rate_hz": (len(ins) - 1) / in_span if in_span > 0 else None,
+                   "output_rate_hz": (len(outs) - 1) / span if span > 0 else None,
+                   "output_rate_over_input_span_hz": len(outs) / in_span if in_span > 0 else None,
+                   "latency_median_ms": float(np.median(lat)) if lat else None,
+                   "latency_p90_ms": float(np.percentile(lat, 90)) if lat else None,
+                   "density_mean": float(np.mean(r["density"])) if r["density"] else None,
+                   "nodelet_diagnostics": r["diag"]}
+            result[ns] = res
+    with open(args.out, "w") as f:
+        json.dump(result, f, indent=2)
+    rospy.signal_shutdown("done")
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    sub = ap.add_subparsers(dest="cmd", required=True)
+    p = sub.add_parser("paced")
+    p.add_argument("--bag", required=True)
+    p.add_argument("--ns", default="/endoscope")
+    p.add_argument("--out", required=True)
+    p.add_argument("--hold-s", type=float, default=0.0)
+    p.add_argument("--frame-timeout-s", type=float, default=60.0)
+    p.add_argument("--within-frames", type=int, default=10)
+    l = sub.add_parser("listen")
+    l.add_argument("--ns", action="append", required=True)
+    l.add_argument("--nodelet", action="append", default=[],
+                   help="diagnostics name of a nodelet to record (e.g. /endoscope/reconstruction)")
+    l.add_argument("--frames", type=int, required=True)
+    l.add_argument("--out", required=True)
+    l.add_argument("--done-file", required=True)
+    l.add_argument("--ready-file", default="")
+    l.add_argument("--timeout-s", type=float, default=300.0)
+    args = ap.parse_args(rospy.myargv()[1:])
+    paced(args) if args.cmd == "paced" else listen(args)
+
+
+if __name__ == "__main__":
+    main()
