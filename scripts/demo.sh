@@ -33,6 +33,7 @@ export ROS_LOG_DIR="$OUT/log/ros"
 PORT=$(/usr/bin/python3 -c 'import socket; s=socket.socket(); s.bind(("",0)); print(s.getsockname()[1])')
 export ROS_MASTER_URI="http://localhost:$PORT"
 export ROS_HOSTNAME=localhost
+export ROSCONSOLE_STDOUT_LINE_BUFFERED=1  # node logs reach out/demo/log/ as they happen
 t_start=$(date +%s)
 
 PIDS=()
@@ -70,9 +71,10 @@ start_nodelet() {  # $1 = log name
   PIDS+=($NODELET_PID)
   local deadline=$(( $(date +%s) + 60 ))
   while [ "$(date +%s)" -lt "$deadline" ]; do
-    grep -q "ready (" "$OUT/log/$1.log" 2>/dev/null && return 0
     grep -q "FATAL" "$OUT/log/$1.log" 2>/dev/null && break
-    sleep 0.2
+    # The reconfigure server is the last thing the nodelet starts.
+    rostopic list 2>/dev/null | grep -q "^$NS/reconstruction/parameter_updates\$" && return 0
+    sleep 0.5
   done
   echo "[demo] ERROR: the nodelet did not start, see $OUT/log/$1.log" >&2
   return 1

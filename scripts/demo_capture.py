@@ -108,7 +108,7 @@ def render_cloud(path, xyz, rgb, width=960, height=720):
     rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
     ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
     q = (p - centre) @ (ry @ rx).T
-    dist = 2.2 * np.ptp(p[:, 0])
+    dist = 1.3 * np.ptp(p[:, 0])
     q[:, 2] += dist
     f = 0.9 * width
     u = (f * q[:, 0] / q[:, 2] + width / 2).astype(np.int64)
@@ -126,7 +126,8 @@ def render_cloud(path, xyz, rgb, width=960, height=720):
 
 def colourise(values, vmin, vmax, cmap="turbo", invalid=None):
     t = np.clip((values.astype(np.float64) - vmin) / max(1e-9, vmax - vmin), 0, 1)
-    rgb = (plt.get_cmap(cmap)(t)[:, :, :3] * 255).astype(np.uint8)
+    # Start the map above its darkest colours so that 0 stays apart from black (= invalid).
+    rgb = (plt.get_cmap(cmap)(0.1 + 0.9 * t)[:, :, :3] * 255).astype(np.uint8)
     if invalid is not None:
         rgb[invalid] = 0
     return rgb

@@ -3,10 +3,9 @@
 #include <cmath>
 #include <fstream>
 #include <limits>
-#include <stdexcept>
-
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
+#include <stdexcept>
 
 namespace endo_stereo {
 
@@ -74,9 +73,8 @@ MiddleburyScene loadMiddleburyScene(const std::string& dir) {
   MiddleburyScene s;
   const size_t slash = dir.find_last_not_of('/');
   const std::string trimmed = dir.substr(0, slash == std::string::npos ? 0 : slash + 1);
-  s.name = trimmed.substr(trimmed.find_last_of('/') == std::string::npos
-                              ? 0
-                              : trimmed.find_last_of('/') + 1);
+  s.name = trimmed.substr(
+      trimmed.find_last_of('/') == std::string::npos ? 0 : trimmed.find_last_of('/') + 1);
   std::ifstream info(dir + "/info.txt");
   if (!info || !(info >> s.scale >> s.max_disp) || s.scale <= 0 || s.max_disp < 0) {
     throw std::runtime_error("loadMiddleburyScene: cannot read scale and max disparity from " +

@@ -41,20 +41,19 @@
 #include <limits>
 #include <memory>
 #include <mutex>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <stdexcept>
 #include <vector>
-
-#include <opencv2/core/utility.hpp>
-#include <opencv2/imgproc.hpp>
 
 namespace endo_stereo {
 
 std::string MatcherParams::validate() const {
   std::ostringstream msg;
   if (max_disparity < min_disparity) {
-    msg << "matcher.max_disparity = " << max_disparity << " must be >= matcher.min_disparity = "
-        << min_disparity;
+    msg << "matcher.max_disparity = " << max_disparity
+        << " must be >= matcher.min_disparity = " << min_disparity;
   } else if (max_disparity - min_disparity > 4095 || std::abs(min_disparity) > 16383 ||
              std::abs(max_disparity) > 16383) {
     msg << "matcher.min_disparity/max_disparity = " << min_disparity << "/" << max_disparity
@@ -65,8 +64,8 @@ std::string MatcherParams::validate() const {
     msg << "matcher.window_step_px = " << window_step_px << " must be even and >= 2";
   } else if (window_max_px < window_min_px || window_max_px > 32) {
     // Up to 32 x 32 the window sums are exact in float (see the top of matcher.cpp).
-    msg << "matcher.window_max_px = " << window_max_px << " must be in [window_min_px = "
-        << window_min_px << ", 32]";
+    msg << "matcher.window_max_px = " << window_max_px
+        << " must be in [window_min_px = " << window_min_px << ", 32]";
   } else if ((window_max_px - window_min_px) / window_step_px + 1 > 16) {
     msg << "matcher.window_max_px = " << window_max_px << " allows more than 16 window sizes";
   } else if (!(gamma_min >= 0.0) || !std::isfinite(gamma_min)) {
@@ -121,13 +120,13 @@ struct VValidity {
 
 /// Per-row window statistics at one window size (index = column).
 struct RowMaps {
-  std::vector<float> mean_l;   // window mean of L - 128
-  std::vector<float> inv_l;    // sqrt(n / (n sum L^2 - (sum L)^2)), 0 where flat
-  std::vector<float> sum_r;    // window sum of R - 128
+  std::vector<float> mean_l;  // window mean of L - 128
+  std::vector<float> inv_l;   // sqrt(n / (n sum L^2 - (sum L)^2)), 0 where flat
+  std::vector<float> sum_r;   // window sum of R - 128
   std::vector<float> inv_r;
   std::vector<float> gamma_l;  // stdev of the Laplacian over the window
   std::vector<float> gamma_r;
-  std::vector<float> sum_r_rev, inv_r_rev;  // mirrored: index W - 1 - x
+  std::vector<float> sum_r_rev, inv_r_rev;                // mirrored: index W - 1 - x
   std::vector<int> stamp_l, stamp_r, stamp_gl, stamp_gr;  // sparse rows: computed for this stamp
 };
 
@@ -135,17 +134,17 @@ struct RowMaps {
 struct Scratch {
   int width = 0;
   int num_d = 0;
-  int dpad = 0;                    // num_d rounded up to a multiple of 8
-  int stamp = 0;                   // increases with every processed row
-  int uniform_row = -10;           // row whose vertical sums denseUniformRow left valid
-  std::vector<int> upto;           // denseUniformRow: per disparity, next column to update
+  int dpad = 0;           // num_d rounded up to a multiple of 8
+  int stamp = 0;          // increases with every processed row
+  int uniform_row = -10;  // row whose vertical sums denseUniformRow left valid
+  std::vector<int> upto;  // denseUniformRow: per disparity, next column to update
   // Dense engine.
-  std::vector<float> v;            // vertical window sums, num_d rows of width
-  std::vector<VValidity> valid;    // per disparity
+  std::vector<float> v;          // vertical window sums, num_d rows of width
+  std::vector<VValidity> valid;  // per disparity
   std::vector<float> tmp_a, tmp_b, hsum;
-  std::vector<int> cover;          // per block, per disparity: pixels whose range holds it
-  std::vector<int> iv_start;       // per disparity: first index into ivs
-  std::vector<Interval> ivs;       // the intervals of all disparities, grouped by disparity
+  std::vector<int> cover;     // per block, per disparity: pixels whose range holds it
+  std::vector<int> iv_start;  // per disparity: first index into ivs
+  std::vector<Interval> ivs;  // the intervals of all disparities, grouped by disparity
   std::vector<Interval> pieces, merged, need, runs, out_ivs;
   std::vector<int> block_a, block_b, blocks, active, pick, cand_q;
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
@@ -168,9 +167,29 @@ struct Scratch {
     dpad = (nd + 7) / 8 * 8;
     v.assign(static_cast<size_t>(nd) * w, 0.f);
     valid.assign(nd, VValidity{});
-    for (auto* vec : {&tmp_a, &tmp_b, &hsum, &elo, &ehi, &act, &p1, &p2, &best, &best_d, &best_l,
-                      &best_r, &second, &rb_v, &rb_d, &maps.mean_l, &maps.inv_l, &maps.sum_r,
-                      &maps.inv_r, &maps.gamma_l, &maps.gamma_r, &maps.sum_r_rev, &maps.inv_r_rev}) {
+    for (auto* vec : {&tmp_a,
+                      &tmp_b,
+                      &hsum,
+                      &elo,
+                      &ehi,
+                      &act,
+                      &p1,
+                      &p2,
+                      &best,
+                      &best_d,
+                      &best_l,
+                      &best_r,
+                      &second,
+                      &rb_v,
+                      &rb_d,
+                      &maps.mean_l,
+                      &maps.inv_l,
+                      &maps.sum_r,
+                      &maps.inv_r,
+                      &maps.gamma_l,
+                      &maps.gamma_r,
+                      &maps.sum_r_rev,
+                      &maps.inv_r_rev}) {
       vec->assign(w + 64, 0.f);
     }
     maps.stamp_l.assign(w, -1);
@@ -347,17 +366,17 @@ struct SliceArgs {
   int n;
   int w;
   float d;
-  const float* v;       // vertical sums at column x - r, or null
-  const float* h;       // window sums of L * R(x - d), when v is null
+  const float* v;  // vertical sums at column x - r, or null
+  const float* h;  // window sums of L * R(x - d), when v is null
   const float* mean_l;
   const float* inv_l;
-  const float* sum_r;   // at x - d
-  const float* inv_r;   // at x - d
+  const float* sum_r;  // at x - d
+  const float* inv_r;  // at x - d
   const float* elo;
   const float* ehi;
   const float* act;
   float *p1, *p2, *best, *best_d, *best_l, *best_r, *second;
-  float *rb_v, *rb_d;   // at x - d
+  float *rb_v, *rb_d;  // at x - d
 };
 
 // The streaming peak tracker. At disparity d a pixel knows S(d-2), S(d-1) (p2, p1) and S(d):
@@ -545,12 +564,12 @@ inline float nccValue(float h, float mean_l, float sum_r, float inv_l, float inv
 
 /// Per-frame images shared (read-only) by the workers.
 struct FrameData {
-  cv::Mat lf, rf;          // CV_32F value - 128
-  cv::Mat rf_rev;          // CV_32F rf mirrored left-right, padded (sparse engine)
-  int rev_pad = 0;         // columns of padding on the left of rf_rev
-  cv::Mat int_l, int_r;    // CV_32S integral images of the 8-bit views
-  cv::Mat sq_l, sq_r;      // CV_64F integral images of their squares
-  cv::Mat lap_l, lap_r;    // CV_32F 3x3 Laplacian on 0..255
+  cv::Mat lf, rf;        // CV_32F value - 128
+  cv::Mat rf_rev;        // CV_32F rf mirrored left-right, padded (sparse engine)
+  int rev_pad = 0;       // columns of padding on the left of rf_rev
+  cv::Mat int_l, int_r;  // CV_32S integral images of the 8-bit views
+  cv::Mat sq_l, sq_r;    // CV_64F integral images of their squares
+  cv::Mat lap_l, lap_r;  // CV_32F 3x3 Laplacian on 0..255
   cv::Mat int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;  // CV_64F integrals of it and its square
   cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
 };
@@ -558,8 +577,8 @@ struct FrameData {
 }  // namespace
 
 struct RobustMatcher::Impl : FrameData {
-  cv::Mat state;           // CV_8U: 0 = undecided/failed so far, 1 = accepted
-  cv::Mat window_idx;      // CV_8U window index that accepted
+  cv::Mat state;       // CV_8U: 0 = undecided/failed so far, 1 = accepted
+  cv::Mat window_idx;  // CV_8U window index that accepted
   cv::Mat tmp1, tmp2, tmp3, tmp4, tmp5, code_before;
 
   std::mutex pool_mutex;
@@ -608,7 +627,7 @@ struct LevelContext {
   int w, r;
   int width, height;
   int dmin, dmax;
-  cv::Mat* state;       // 1 = accepted earlier
+  cv::Mat* state;  // 1 = accepted earlier
   cv::Mat* window_idx;
   MatchResult* out;
 };
@@ -777,13 +796,17 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
     vv.cur_row = y;
   }
   float* v = s.v.data() + static_cast<size_t>(k) * c.width;
-  // The common case of a full search: the same single interval as on the previous row.
-  if (need.size() == 1 && vv.cur.empty() && vv.prev.size() == 1 && vv.prev[0].a == need[0].a &&
-      vv.prev[0].b == need[0].b) {
-    const int ra = need[0].a, n = need[0].b - ra + 1;
-    vRunning(n, v + ra, lf.ptr<float>(y + r) + ra, rf.ptr<float>(y + r) + ra - d,
-             lf.ptr<float>(y - r - 1) + ra, rf.ptr<float>(y - r - 1) + ra - d);
-    vv.cur.push_back(need[0]);
+  // The common case: the same intervals as on the previous row (a smooth range map moves its
+  // intervals only now and then).
+  if (vv.cur.empty() && vv.prev.size() == need.size() &&
+      std::equal(need.begin(), need.end(), vv.prev.begin(),
+                 [](const Interval& p, const Interval& q) { return p.a == q.a && p.b == q.b; })) {
+    for (const Interval& iv : need) {
+      const int ra = iv.a, n = iv.b - ra + 1;
+      vRunning(n, v + ra, lf.ptr<float>(y + r) + ra, rf.ptr<float>(y + r) + ra - d,
+               lf.ptr<float>(y - r - 1) + ra, rf.ptr<float>(y - r - 1) + ra - d);
+    }
+    vv.cur = need;
     return;
   }
   // pieces := need minus cur.
@@ -1140,8 +1163,8 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
 
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1), the same rules as
 /// the streaming tracker of the dense engine.
-inline void scanProfile(const float* prof, int n, int lo, float* best, float* best_d,
-                        float* best_l, float* best_r, float* second) {
+inline void scanProfile(const float* prof, int n, int lo, float* best, float* best_d, float* best_l,
+                        float* best_r, float* second) {
   float b = kNegInf, sec = kNegInf;
   int bi = -1;
   for (int i = 1; i + 1 < n; ++i) {
@@ -1238,11 +1261,31 @@ ES_KERNEL void nccSpan(int n, const float* __restrict h, const float* __restrict
 void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   const int r = c.r;
   const int nd = c.dmax - c.dmin + 1;
-  const int xa = std::max(0, q + c.dmin - r), xb = std::min(c.width - 1, q + c.dmax + r);
+  // Disparities whose left pixel q + d has d in its range: all of them inside the border with a
+  // full search; with per-pixel ranges (narrow) usually a few, and only their columns are needed.
+  int dv0 = std::max(c.dmin, r - q), dv1 = std::min(c.dmax, c.width - 1 - r - q);
+  if (!c.uniform_ranges) {
+    int a0 = std::numeric_limits<int>::max(), a1 = std::numeric_limits<int>::min();
+    for (int d = dv0; d <= dv1; ++d) {
+      int lo, hi;
+      if (effectiveRange(c, q + d, y, &lo, &hi) && d >= lo && d <= hi) {
+        a0 = std::min(a0, d);
+        a1 = d;
+      }
+    }
+    dv0 = a0;
+    dv1 = a1;
+  }
+  if (dv0 > dv1) {
+    s.rb_v[q] = kNegInf;
+    s.rb_d[q] = 0.f;
+    return;
+  }
+  const int xa = std::max(0, q + dv0 - r), xb = std::min(c.width - 1, q + dv1 + r);
   for (int xx = xa; xx <= xb; ++xx) ensureColumn(c, s, xx, y);
   float* h = s.hvec.data();
-  rlAccumulate(xa, xb, q, r, c.dmin, nd, s.dpad, s.colsum.data(), s.col_k0.data(),
-               s.col_k1.data(), h);
+  rlAccumulate(xa, xb, q, r, c.dmin, nd, s.dpad, s.colsum.data(), s.col_k0.data(), s.col_k1.data(),
+               h);
   const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
   // Left pixels inside the border: q + d in [r, W - 1 - r].
   const int d0 = std::max(c.dmin, r - q), d1 = std::min(c.dmax, c.width - 1 - r - q);
@@ -1368,8 +1411,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
 
   const float delta_min = static_cast<float>(c.mp->delta_min);
   const float min_ncc_full = static_cast<float>(c.mp->min_ncc);
-  const float min_ncc_narrow =
-      std::max(min_ncc_full, static_cast<float>(c.mp->min_ncc_narrowed));
+  const float min_ncc_narrow = std::max(min_ncc_full, static_cast<float>(c.mp->min_ncc_narrowed));
   // A pixel whose per-pixel range narrows the search has lost the competitors outside it, so its
   // best peak must be stronger (min_ncc_narrowed): a prior must not weaken the criteria.
   auto minNcc = [&](int x) {
@@ -1587,7 +1629,6 @@ class ThreadCountGuard {
   bool active_;
 };
 
-
 }  // namespace
 
 void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResult& out,
@@ -1680,18 +1721,32 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
-    const LevelContext c{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity, mp.max_disparity,
-                         &im.state, &im.window_idx, &out};
-    cv::parallel_for_(cv::Range(0, num_stripes), [&](const cv::Range& rg) {
-      std::unique_ptr<Scratch> s = im.acquire();
-      s->ensure(W, nd);
-      for (int stripe = rg.start; stripe < rg.end; ++stripe) {
-        s->resetSums();
-        const int y_end = std::min(H, (stripe + 1) * kStripeRows);
-        for (int y = stripe * kStripeRows; y < y_end; ++y) processRow(c, y, *s);
-      }
-      im.release(std::move(s));
-    }, num_stripes);
+    const LevelContext c{&mp,
+                         &im,
+                         uniform,
+                         level,
+                         w,
+                         w / 2,
+                         W,
+                         H,
+                         mp.min_disparity,
+                         mp.max_disparity,
+                         &im.state,
+                         &im.window_idx,
+                         &out};
+    cv::parallel_for_(
+        cv::Range(0, num_stripes),
+        [&](const cv::Range& rg) {
+          std::unique_ptr<Scratch> s = im.acquire();
+          s->ensure(W, nd);
+          for (int stripe = rg.start; stripe < rg.end; ++stripe) {
+            s->resetSums();
+            const int y_end = std::min(H, (stripe + 1) * kStripeRows);
+            for (int y = stripe * kStripeRows; y < y_end; ++y) processRow(c, y, *s);
+          }
+          im.release(std::move(s));
+        },
+        num_stripes);
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4,

@@ -4,9 +4,9 @@
 // in which pixels are visited.
 #include <algorithm>
 #include <cmath>
+#include <limits>
 #include <sstream>
 #include <stdexcept>
-#include <limits>
 #include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
@@ -51,7 +51,8 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   const float tol = static_cast<float>(params.outlier_disparity_tol_px);
   // N / window^2 < mu, with N counting the agreeing neighbours (the pixel itself excluded) and the
   // denominator fixed at window^2 also at the image border, as METHOD.md writes it.
-  const double need = params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;
+  const double need =
+      params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;
   const cv::Mat src = disparity.clone();
   std::vector<int> agree(cols);
   int64_t removed = 0;
@@ -95,7 +96,10 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   for (int y = 0; y < rows; ++y) {
     int x = 0;
     while (x < cols) {
-      if (valid(y, x)) { ++x; continue; }
+      if (valid(y, x)) {
+        ++x;
+        continue;
+      }
       int end = x;
       while (end < cols && !valid(y, end)) ++end;
       if (x > 0 && end < cols && end - x <= max_hole) {
@@ -107,7 +111,10 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   for (int x = 0; x < cols; ++x) {
     int y = 0;
     while (y < rows) {
-      if (valid(y, x)) { ++y; continue; }
+      if (valid(y, x)) {
+        ++y;
+        continue;
+      }
       int end = y;
       while (end < rows && !valid(end, x)) ++end;
       if (y > 0 && end < rows && end - y <= max_hole) {

@@ -5,6 +5,7 @@
 
 #include <pluginlib/class_list_macros.hpp>
 
+#include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/ros/reconfigure.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 
@@ -65,7 +66,10 @@ void ReconstructionNodelet::reconfigureCb(EndoStereoConfig& config, uint32_t /*l
     config = configFromParams(current, config);
     return;
   }
-  NODELET_INFO("reconfigured; the new parameters apply from the next frame");
+  // setCallback() calls back at once with the loaded parameters: nothing to say then.
+  if (pipelineParamsToYaml(next) != pipelineParamsToYaml(current)) {
+    NODELET_INFO("reconfigured; the new parameters apply from the next frame");
+  }
 }
 
 }  // namespace endo_stereo

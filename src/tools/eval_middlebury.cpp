@@ -8,18 +8,18 @@
 // DIR holds one folder per scene (default ../shared/data/middlebury relative to the repository).
 // Only the `matcher:` and `filter:` sections of FILE are read. The search range of a scene is
 // 0 .. max disparity from its info.txt, unless --set matcher.max_disparity=... is given.
+#include <yaml-cpp/yaml.h>
+
 #include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <iostream>
 #include <map>
+#include <opencv2/imgcodecs.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
-
-#include <opencv2/imgcodecs.hpp>
-#include <yaml-cpp/yaml.h>
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
@@ -37,31 +37,55 @@ std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::s
   const std::string name = key.find('.') == std::string::npos ? key : key.substr(key.find('.') + 1);
   try {
     if (sec == "matcher") {
-      if (name == "min_disparity") m.min_disparity = std::stoi(v);
-      else if (name == "max_disparity") m.max_disparity = std::stoi(v);
-      else if (name == "window_min_px") m.window_min_px = std::stoi(v);
-      else if (name == "window_step_px") m.window_step_px = std::stoi(v);
-      else if (name == "window_max_px") m.window_max_px = std::stoi(v);
-      else if (name == "gamma_min") m.gamma_min = std::stod(v);
-      else if (name == "delta_min") m.delta_min = std::stod(v);
-      else if (name == "epsilon_px") m.epsilon_px = std::stod(v);
-      else if (name == "min_ncc") m.min_ncc = std::stod(v);
-      else if (name == "min_ncc_narrowed") m.min_ncc_narrowed = std::stod(v);
-      else if (name == "subpixel") m.subpixel = parseBool(v);
-      else if (name == "num_threads") m.num_threads = std::stoi(v);
-      else if (name == "edge_window_max_px") m.edge_window_max_px = std::stoi(v);
-      else if (name == "edge_disparity_jump_px") m.edge_disparity_jump_px = std::stod(v);
-      else if (name == "edge_disparity_jump_above_px") m.edge_disparity_jump_above_px = std::stod(v);
-      else if (name == "edge_margin_px") m.edge_margin_px = std::stoi(v);
-      else return "unknown key " + key;
+      if (name == "min_disparity")
+        m.min_disparity = std::stoi(v);
+      else if (name == "max_disparity")
+        m.max_disparity = std::stoi(v);
+      else if (name == "window_min_px")
+        m.window_min_px = std::stoi(v);
+      else if (name == "window_step_px")
+        m.window_step_px = std::stoi(v);
+      else if (name == "window_max_px")
+        m.window_max_px = std::stoi(v);
+      else if (name == "gamma_min")
+        m.gamma_min = std::stod(v);
+      else if (name == "delta_min")
+        m.delta_min = std::stod(v);
+      else if (name == "epsilon_px")
+        m.epsilon_px = std::stod(v);
+      else if (name == "min_ncc")
+        m.min_ncc = std::stod(v);
+      else if (name == "min_ncc_narrowed")
+        m.min_ncc_narrowed = std::stod(v);
+      else if (name == "subpixel")
+        m.subpixel = parseBool(v);
+      else if (name == "num_threads")
+        m.num_threads = std::stoi(v);
+      else if (name == "edge_window_max_px")
+        m.edge_window_max_px = std::stoi(v);
+      else if (name == "edge_disparity_jump_px")
+        m.edge_disparity_jump_px = std::stod(v);
+      else if (name == "edge_disparity_jump_above_px")
+        m.edge_disparity_jump_above_px = std::stod(v);
+      else if (name == "edge_margin_px")
+        m.edge_margin_px = std::stoi(v);
+      else
+        return "unknown key " + key;
     } else if (sec == "filter") {
-      if (name == "remove_outliers") f.remove_outliers = parseBool(v);
-      else if (name == "outlier_window_px") f.outlier_window_px = std::stoi(v);
-      else if (name == "outlier_disparity_tol_px") f.outlier_disparity_tol_px = std::stod(v);
-      else if (name == "outlier_min_share") f.outlier_min_share = std::stod(v);
-      else if (name == "fill_holes") f.fill_holes = parseBool(v);
-      else if (name == "fill_max_hole_px") f.fill_max_hole_px = std::stoi(v);
-      else return "unknown key " + key;
+      if (name == "remove_outliers")
+        f.remove_outliers = parseBool(v);
+      else if (name == "outlier_window_px")
+        f.outlier_window_px = std::stoi(v);
+      else if (name == "outlier_disparity_tol_px")
+        f.outlier_disparity_tol_px = std::stod(v);
+      else if (name == "outlier_min_share")
+        f.outlier_min_share = std::stod(v);
+      else if (name == "fill_holes")
+        f.fill_holes = parseBool(v);
+      else if (name == "fill_max_hole_px")
+        f.fill_max_hole_px = std::stoi(v);
+      else
+        return "unknown key " + key;
     } else {
       return "unknown section in " + key;
     }
@@ -81,8 +105,8 @@ std::string loadYaml(const std::string& path, es::MatcherParams& m, es::PostFilt
   for (const char* sec : {"matcher", "filter"}) {
     if (!root[sec]) continue;
     for (const auto& kv : root[sec]) {
-      const std::string err =
-          setField(m, f, std::string(sec) + "." + kv.first.as<std::string>(), kv.second.as<std::string>());
+      const std::string err = setField(m, f, std::string(sec) + "." + kv.first.as<std::string>(),
+                                       kv.second.as<std::string>());
       if (!err.empty()) return path + ": " + err;
     }
   }
@@ -124,20 +148,30 @@ int main(int argc, char** argv) {
       data = next();
     } else if (a == "--params") {
       const std::string err = loadYaml(next(), mp, fp);
-      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      if (!err.empty()) {
+        std::cerr << err << "\n";
+        return 2;
+      }
     } else if (a == "--set") {
       const std::string kv = next();
       const size_t eq = kv.find('=');
-      const std::string err = eq == std::string::npos ? "expected key=value: " + kv
-                                                      : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
-      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      const std::string err = eq == std::string::npos
+                                  ? "expected key=value: " + kv
+                                  : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
+      if (!err.empty()) {
+        std::cerr << err << "\n";
+        return 2;
+      }
       if (kv.rfind("matcher.max_disparity", 0) == 0) fixed_max = true;
     } else if (a == "--scenes") {
       scenes = split(next(), ',');
     } else if (a == "--sweep") {
       const std::string kv = next();
       const size_t eq = kv.find('=');
-      if (eq == std::string::npos) { std::cerr << "--sweep key=v1,v2,...\n"; return 2; }
+      if (eq == std::string::npos) {
+        std::cerr << "--sweep key=v1,v2,...\n";
+        return 2;
+      }
       sweep_key = kv.substr(0, eq);
       sweep_values = split(kv.substr(eq + 1), ',');
     } else if (a == "--dump") {
@@ -166,7 +200,10 @@ int main(int argc, char** argv) {
     es::PostFilterParams f = fp;
     if (!sweep_key.empty()) {
       const std::string err = setField(m, f, sweep_key, sv);
-      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      if (!err.empty()) {
+        std::cerr << err << "\n";
+        return 2;
+      }
     }
     double worst_b2 = 0, sum_b2 = 0, min_dens = 1;
     for (const auto& s : loaded) {
@@ -174,7 +211,10 @@ int main(int argc, char** argv) {
       if (!fixed_max) ms.max_disparity = s.max_disp;
       std::string err = ms.validate();
       if (err.empty()) err = f.validate();
-      if (!err.empty()) { std::cerr << err << "\n"; return 2; }
+      if (!err.empty()) {
+        std::cerr << err << "\n";
+        return 2;
+      }
       es::RobustMatcher matcher(ms, f);
       es::MatchResult r;
       const auto t0 = std::chrono::steady_clock::now();
@@ -192,26 +232,36 @@ int main(int argc, char** argv) {
       min_dens = std::min(min_dens, sc.density);
       if (!dump_dir.empty()) {
         // Error map: grey = right (|e| <= 1), yellow = 1 < |e| <= 2, red = |e| > 2, blue = output
-        // outside the nonocc mask; rejected: magenta = edge, dark blue = peak gap, teal = left-right,
-        // orange = no peak, white = outlier, green = structure, black = not searched.
+        // outside the nonocc mask; rejected: magenta = edge, dark blue = peak gap, teal =
+        // left-right, orange = no peak, white = outlier, green = structure, black = not searched.
         cv::Mat vis(s.gt.size(), CV_8UC3, cv::Scalar(0, 0, 0));
         for (int y = 0; y < s.gt.rows; ++y) {
           for (int x = 0; x < s.gt.cols; ++x) {
             const float d = r.disparity.at<float>(y, x), g = s.gt.at<float>(y, x);
             cv::Vec3b c(0, 0, 0);
             if (!std::isnan(d)) {
-              if (!s.nonocc.at<uint8_t>(y, x) || std::isnan(g)) c = cv::Vec3b(255, 0, 0);
-              else if (std::fabs(d - g) > 2) c = cv::Vec3b(0, 0, 255);
-              else if (std::fabs(d - g) > 1) c = cv::Vec3b(0, 255, 255);
-              else c = cv::Vec3b(160, 160, 160);
+              if (!s.nonocc.at<uint8_t>(y, x) || std::isnan(g))
+                c = cv::Vec3b(255, 0, 0);
+              else if (std::fabs(d - g) > 2)
+                c = cv::Vec3b(0, 0, 255);
+              else if (std::fabs(d - g) > 1)
+                c = cv::Vec3b(0, 255, 255);
+              else
+                c = cv::Vec3b(160, 160, 160);
             } else {
               const int code = r.code.at<uint8_t>(y, x);
-              if (code == es::kCodeRejectEdge) c = cv::Vec3b(255, 0, 255);
-              else if (code == es::kCodeRejectPeakGap) c = cv::Vec3b(120, 40, 0);
-              else if (code == es::kCodeRejectLeftRight) c = cv::Vec3b(120, 120, 0);
-              else if (code == es::kCodeNoPeak) c = cv::Vec3b(0, 100, 200);
-              else if (code == es::kCodeRejectOutlier) c = cv::Vec3b(255, 255, 255);
-              else if (code == es::kCodeRejectStructure) c = cv::Vec3b(0, 90, 0);
+              if (code == es::kCodeRejectEdge)
+                c = cv::Vec3b(255, 0, 255);
+              else if (code == es::kCodeRejectPeakGap)
+                c = cv::Vec3b(120, 40, 0);
+              else if (code == es::kCodeRejectLeftRight)
+                c = cv::Vec3b(120, 120, 0);
+              else if (code == es::kCodeNoPeak)
+                c = cv::Vec3b(0, 100, 200);
+              else if (code == es::kCodeRejectOutlier)
+                c = cv::Vec3b(255, 255, 255);
+              else if (code == es::kCodeRejectStructure)
+                c = cv::Vec3b(0, 90, 0);
             }
             vis.at<cv::Vec3b>(y, x) = c;
           }
@@ -232,8 +282,10 @@ int main(int argc, char** argv) {
               if (std::fabs(d - s.gt.at<float>(y, x)) > 2) ++bad;
             }
           }
-          if (n) std::printf("    window %2d: %7lld px, bad2 %.2f%%\n", ms.window_min_px + k * ms.window_step_px,
-                             static_cast<long long>(n), 100.0 * bad / n);
+          if (n)
+            std::printf("    window %2d: %7lld px, bad2 %.2f%%\n",
+                        ms.window_min_px + k * ms.window_step_px, static_cast<long long>(n),
+                        100.0 * bad / n);
         }
         {
           int64_t in_nonocc[32] = {0}, in_disc[32] = {0};

@@ -5,7 +5,6 @@
 //
 //   endo_stereo_speed [--frames N] [--threads N] [--width W --height H] [--params FILE.yaml]
 #include <sys/resource.h>
-
 #include <time.h>
 
 #include <algorithm>
@@ -14,11 +13,10 @@
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
-#include <string>
-#include <vector>
-
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core/utility.hpp>
+#include <string>
+#include <vector>
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
@@ -66,15 +64,24 @@ int main(int argc, char** argv) {
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::atoi(argv[++i]) : 0; };
-    if (a == "--frames") frames = std::max(1, next());
-    else if (a == "--threads") threads = next();
-    else if (a == "--width") width = next();
-    else if (a == "--height") height = next();
-    else if (a == "--window-max") window_max = next();
-    else if (a == "--only-full") run_prior = false;
-    else if (a == "--only-prior") run_full = false;
+    if (a == "--frames")
+      frames = std::max(1, next());
+    else if (a == "--threads")
+      threads = next();
+    else if (a == "--width")
+      width = next();
+    else if (a == "--height")
+      height = next();
+    else if (a == "--window-max")
+      window_max = next();
+    else if (a == "--only-full")
+      run_prior = false;
+    else if (a == "--only-prior")
+      run_full = false;
     else {
-      std::fprintf(stderr, "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] [--window-max W]\n");
+      std::fprintf(stderr,
+                   "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] "
+                   "[--window-max W]\n");
       return 2;
     }
   }
@@ -137,15 +144,17 @@ int main(int argc, char** argv) {
   std::printf("endo_stereo_speed: %dx%d, disparities 0..63, %d frames, OpenCV threads %d\n", width,
               height, frames, cv::getNumThreads());
   std::printf("  StereoSGBM MODE_SGBM block 5   median %8.1f ms\n", median(t_sgbm));
-  std::printf("  ours, full search              median %8.1f ms  (match %.1f + filters %.1f)  "
-              "ratio ours/SGBM %.2f  density %.1f%% bad2 %.2f%%\n",
-              median(t_ours), median(t_match), median(t_filter), median(t_ours) / median(t_sgbm),
-              100 * full_score.density, 100 * full_score.bad2);
+  std::printf(
+      "  ours, full search              median %8.1f ms  (match %.1f + filters %.1f)  "
+      "ratio ours/SGBM %.2f  density %.1f%% bad2 %.2f%%\n",
+      median(t_ours), median(t_match), median(t_filter), median(t_ours) / median(t_sgbm),
+      100 * full_score.density, 100 * full_score.bad2);
   std::printf("  ours, per-pixel range +-4 px   median %8.1f ms  density %.1f%% bad2 %.2f%%\n",
               median(t_prior), 100 * prior_score.density, 100 * prior_score.bad2);
-  std::printf("  CPU time medians (all threads): SGBM %.1f ms, ours full %.1f ms (ratio %.2f), "
-              "ours +-4 px %.1f ms\n",
-              median(c_sgbm), median(c_ours), median(c_ours) / median(c_sgbm), median(c_prior));
+  std::printf(
+      "  CPU time medians (all threads): SGBM %.1f ms, ours full %.1f ms (ratio %.2f), "
+      "ours +-4 px %.1f ms\n",
+      median(c_sgbm), median(c_ours), median(c_ours) / median(c_sgbm), median(c_prior));
   std::printf("  peak RSS %.1f MB (one matcher, both modes)\n", peakRssMb());
   // Identical output whatever the thread count (fixed row stripes, exact sums).
   {

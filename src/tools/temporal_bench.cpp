@@ -47,8 +47,7 @@ Options:
   --instrument-speed X  instrument speed factor (default 1)
   --params FILE.yaml  pipeline preset (matcher, filter, temporal sections are used)
   --set KEY=VALUE     override one parameter (repeatable), e.g. --set temporal.prior_radius_px=3
-  --refresh K         temporal.refresh_period_frames (until the params loader knows the key)
-  --edge-zone E       temporal.prior_edge_zone_px (likewise)
+  --breakdown         per frame, where the bad pixels lie (instrument edge, highlight, ...)
   --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
                       SGBM's MODE_SGBM runs on one thread whatever this says.
   --no-sgbm           skip the SGBM baseline
@@ -120,7 +119,8 @@ cv::Mat labelled(const cv::Mat& img, const std::string& text) {
 int main(int argc, char** argv) {
   endo_stereo::SurgicalSceneParams sp;
   endo_stereo::PipelineParams pp;
-  int frames = 100, warmup = 5, threads = 1, picture_frame = -1, refresh = -1, edge_zone = -1;
+  int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
+  bool breakdown = false;
   bool run_sgbm = true, run_without = true;
   std::string out_dir;
   std::vector<std::string> overrides;
@@ -155,10 +155,8 @@ int main(int argc, char** argv) {
       params_file = next();
     } else if (a == "--set") {
       overrides.push_back(next());
-    } else if (a == "--edge-zone") {
-      edge_zone = std::atoi(next().c_str());
-    } else if (a == "--refresh") {
-      refresh = std::atoi(next().c_str());
+    } else if (a == "--breakdown") {
+      breakdown = true;
     } else if (a == "--threads") {
       threads = std::atoi(next().c_str());
     } else if (a == "--no-baseline") {
@@ -206,8 +204,6 @@ int main(int argc, char** argv) {
       return 2;
     }
   }
-  if (refresh >= 0) pp.temporal.refresh_period_frames = refresh;
-  if (edge_zone >= 0) pp.temporal.prior_edge_zone_px = edge_zone;
   pp.matcher.num_threads = threads;
   cv::setNumThreads(threads);
   endo_stereo::TemporalParams with = pp.temporal, without = pp.temporal;
@@ -230,6 +226,7 @@ int main(int argc, char** argv) {
   endo_stereo::MatchResult res_with, res_without;
   cv::Mat picture_left, picture_disp, picture_fused;
   std::vector<double> frame_ms_with;
+  int64_t breakdown_with[4] = {0, 0, 0, 0}, breakdown_without[4] = {0, 0, 0, 0};
   for (int i = 0; i < frames; ++i) {
     scene.render(i, frame);
     cv::Mat l, r;
@@ -288,7 +285,7 @@ int main(int argc, char** argv) {
       width_sum += ps.mean_narrowed_width_px;
       ++width_frames;
     }
-    if (std::getenv("ES_BENCH_DEBUG") && i >= warmup) {
+    if (breakdown && i >= warmup) {
       // Where do the bad pixels lie? near an instrument edge (10 px), in a highlight, elsewhere.
       cv::Mat edge;
       cv::Mat dil, ero;
@@ -306,13 +303,13 @@ int main(int argc, char** argv) {
         const int n_edge = cv::countNonZero(bad & edge);
         const int n_spec = cv::countNonZero(bad & spec & ~edge);
         const int n_inst = cv::countNonZero(bad & frame.instrument_mask & ~edge & ~spec);
+        int64_t* acc = k == 0 ? breakdown_with : breakdown_without;
+        acc[0] += n_edge;
+        acc[1] += n_spec;
+        acc[2] += n_inst;
+        acc[3] += n_bad - n_edge - n_spec - n_inst;
         std::fprintf(stderr, "  %s: bad %d: instrument edge %d, highlight %d, instrument %d, other %d\n",
                      k == 0 ? "with   " : "without", n_bad, n_edge, n_spec, n_inst, n_bad - n_edge - n_spec - n_inst);
-        if (k == 0 && i == picture_frame) {
-          cv::Mat vis = frame.left.clone();
-          vis.setTo(cv::Scalar(0, 255, 0), bad);
-          cv::imwrite("/tmp/bad_with.png", vis);
-        }
       }
     }
     if (i == picture_frame) {
@@ -365,6 +362,13 @@ int main(int argc, char** argv) {
                 cov_with.central_never, cov_without.central_share, cov_without.overall_share,
                 cov_without.central_never);
   std::cout << buf;
+  if (breakdown) {
+    std::printf("bad pixels after warm-up (instrument edge, highlight, instrument, other): with priors "
+                "%lld %lld %lld %lld, without %lld %lld %lld %lld\n",
+                (long long)breakdown_with[0], (long long)breakdown_with[1], (long long)breakdown_with[2],
+                (long long)breakdown_with[3], (long long)breakdown_without[0], (long long)breakdown_without[1],
+                (long long)breakdown_without[2], (long long)breakdown_without[3]);
+  }
   if (!out_dir.empty()) {
     std::ofstream(out_dir + "/results.json") << buf;
     cv::imwrite(out_dir + "/coverage.png", labelled(tracker_with.coverage().colorImage(),

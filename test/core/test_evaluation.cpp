@@ -1,8 +1,8 @@
 // Scoring against ground truth and the Middlebury loader.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
-
-#include <gtest/gtest.h>
 
 #include "endo_stereo/core/evaluation.hpp"
 

@@ -1,14 +1,14 @@
 // The robust matcher (METHOD.md section 2) on synthetic scenes with exact ground truth.
-#include <cmath>
+#include <gtest/gtest.h>
+
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <cstring>
 #include <limits>
-#include <vector>
-
-#include <gtest/gtest.h>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
@@ -111,9 +111,9 @@ TEST_F(MatcherTest, RejectsTexturelessPatchByStructure) {
   EXPECT_EQ(cv::countNonZero(acceptedMask(r.code(inner))), 0);
   EXPECT_EQ(countCode(r.code(inner), all, kCodeRejectStructure), inner.area());
   // The textured rest is kept.
-  const DisparityScore outside = scoreDisparity(r.disparity(cv::Rect(0, 0, 90, 240)),
-                                                s.disparity(cv::Rect(0, 0, 90, 240)),
-                                                s.occluded(cv::Rect(0, 0, 90, 240)) == 0);
+  const DisparityScore outside =
+      scoreDisparity(r.disparity(cv::Rect(0, 0, 90, 240)), s.disparity(cv::Rect(0, 0, 90, 240)),
+                     s.occluded(cv::Rect(0, 0, 90, 240)) == 0);
   EXPECT_GT(outside.density, 0.8);
 }
 
@@ -145,9 +145,9 @@ TEST_F(MatcherTest, RejectsOccludedPixelsByLeftRightConsistency) {
   MatcherParams p = range(0, 31);
   p.window_max_px = p.window_min_px;  // one window: no fattening from large windows here
   p.epsilon_px = 1.0;
-  p.delta_min = 0.0;                  // peak gap off: the left-right check alone must reject
+  p.delta_min = 0.0;  // peak gap off: the left-right check alone must reject
   p.min_ncc = -1.0;
-  p.edge_disparity_jump_px = 0.0;     // and so must our edge measure
+  p.edge_disparity_jump_px = 0.0;  // and so must our edge measure
   RobustMatcher m(p, noFilter());
   MatchResult r;
   m.compute(s.left, s.right, r);
@@ -243,8 +243,8 @@ TEST_F(MatcherTest, RespectsThePerPixelSearchRange) {
   EXPECT_LT(accepted_right, s.left.total() / 2 / 50);
   EXPECT_GT(r.stats.prior_pixels, 0);
   // Full search gives the same matches where the range holds the truth... within the parabola.
-  const DisparityScore with_range = scoreDisparity(r.disparity.colRange(0, 160),
-                                                   s.disparity.colRange(0, 160));
+  const DisparityScore with_range =
+      scoreDisparity(r.disparity.colRange(0, 160), s.disparity.colRange(0, 160));
   EXPECT_EQ(with_range.n_bad1, 0);
 }
 
@@ -260,7 +260,11 @@ struct Reference {
     for (int yy = y - r; yy <= y + r; ++yy) {
       for (int xx = x - r; xx <= x + r; ++xx) {
         const double a = left.at<uint8_t>(yy, xx), b = right.at<uint8_t>(yy, xx - d);
-        sl += a; sr += b; sll += a * a; srr += b * b; slr += a * b;
+        sl += a;
+        sr += b;
+        sll += a * a;
+        srr += b * b;
+        slr += a * b;
       }
     }
     const double n = (2 * r + 1) * (2 * r + 1);
@@ -273,7 +277,8 @@ struct Reference {
     for (int yy = y - r; yy <= y + r; ++yy) {
       for (int xx = x - r; xx <= x + r; ++xx) {
         const double v = lap.at<float>(yy, xx);
-        s += v; s2 += v * v;
+        s += v;
+        s2 += v * v;
       }
     }
     const double n = (2 * r + 1) * (2 * r + 1);
@@ -301,15 +306,24 @@ struct Reference {
           int a, b;
           if (done.at<uint8_t>(y, x) || !erange(x, y, r, &a, &b)) continue;
           uint8_t& c = code.at<uint8_t>(y, x);
-          if (b - a < 2) { c = kCodeNoPeak; continue; }
-          if (!(gamma(lap_l, x, y, r) > p.gamma_min)) { c = kCodeRejectStructure; continue; }
+          if (b - a < 2) {
+            c = kCodeNoPeak;
+            continue;
+          }
+          if (!(gamma(lap_l, x, y, r) > p.gamma_min)) {
+            c = kCodeRejectStructure;
+            continue;
+          }
           std::vector<double> s;
           for (int d = a; d <= b; ++d) s.push_back(ncc(x, y, d, r));
           int bi = -1;
           for (int i = 1; i + 1 < static_cast<int>(s.size()); ++i) {
             if (s[i] > s[i - 1] && s[i] >= s[i + 1] && (bi < 0 || s[i] > s[bi])) bi = i;
           }
-          if (bi < 0) { c = kCodeNoPeak; continue; }
+          if (bi < 0) {
+            c = kCodeNoPeak;
+            continue;
+          }
           double second = -1.0;
           for (int i = 1; i + 1 < static_cast<int>(s.size()); ++i) {
             if (i != bi && s[i] > s[i - 1] && s[i] >= s[i + 1]) second = std::max(second, s[i]);
@@ -317,8 +331,12 @@ struct Reference {
           if (s[0] > s[1]) second = std::max(second, s[0]);
           if (s.back() > s[s.size() - 2]) second = std::max(second, s.back());
           const int bd = a + bi;
-          if (!(gamma(lap_r, x - bd, y, r) > p.gamma_min)) { c = kCodeRejectStructure; continue; }
-          const bool narrowed = lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
+          if (!(gamma(lap_r, x - bd, y, r) > p.gamma_min)) {
+            c = kCodeRejectStructure;
+            continue;
+          }
+          const bool narrowed =
+              lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
           const double mn = narrowed ? std::max(p.min_ncc, p.min_ncc_narrowed) : p.min_ncc;
           if (!(s[bi] - second > p.delta_min) || s[bi] < mn) {
             c = kCodeRejectPeakGap;
@@ -331,11 +349,18 @@ struct Reference {
             int a2, b2;
             if (!erange(q + d, y, r, &a2, &b2) || d < a2 || d > b2) continue;
             const double v = ncc(q + d, y, d, r);
-            if (v > rl_best) { rl_best = v; rl_d = d; }
+            if (v > rl_best) {
+              rl_best = v;
+              rl_d = d;
+            }
           }
-          if (!(std::abs(bd - rl_d) < p.epsilon_px)) { c = kCodeRejectLeftRight; continue; }
+          if (!(std::abs(bd - rl_d) < p.epsilon_px)) {
+            c = kCodeRejectLeftRight;
+            continue;
+          }
           const double den = s[bi - 1] - 2 * s[bi] + s[bi + 1];
-          const double sub = den < 0 ? std::clamp(0.5 * (s[bi - 1] - s[bi + 1]) / den, -0.5, 0.5) : 0.0;
+          const double sub =
+              den < 0 ? std::clamp(0.5 * (s[bi - 1] - s[bi + 1]) / den, -0.5, 0.5) : 0.0;
           disp.at<float>(y, x) = static_cast<float>(bd + sub);
           c = static_cast<uint8_t>(kCodeAcceptedBase + level);
           done.at<uint8_t>(y, x) = 1;
@@ -437,7 +462,8 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
       const int g = static_cast<int>(std::lround(s.disparity.at<float>(y, x))) + rng.uniform(-3, 4);
       const int rad = rng.uniform(1, 7);
       rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(g - rad);
-      rg.hi.at<int16_t>(y, x) = static_cast<int16_t>(rng.uniform(0, 20) == 0 ? g - rad - 1 : g + rad);
+      rg.hi.at<int16_t>(y, x) =
+          static_cast<int16_t>(rng.uniform(0, 20) == 0 ? g - rad - 1 : g + rad);
     }
   }
   MatcherParams p = range(0, 24);

@@ -1,8 +1,8 @@
 // Isolated-outlier removal and small-hole filling (METHOD.md section 3) on hand-made maps.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
-
-#include <gtest/gtest.h>
 
 #include "endo_stereo/core/matcher.hpp"
 

@@ -1,9 +1,8 @@
 #include "synthetic_scene.hpp"
 
 #include <cmath>
-#include <stdexcept>
-
 #include <opencv2/imgproc.hpp>
+#include <stdexcept>
 
 namespace endo_stereo {
 
@@ -67,7 +66,8 @@ SyntheticScene makeSyntheticScene(const SyntheticSceneParams& p) {
       if (inRect(p.textureless, x, y)) row[c] = static_cast<float>(p.textureless_value);
       if (inRect(p.saturated, x, y)) row[c] = 255.f + 100.f;  // clipped to 255 below
       if (inRect(p.repetitive, x, y)) {
-        row[c] = static_cast<float>(128.0 + 60.0 * std::sin(2.0 * CV_PI * x / p.repetitive_period_px));
+        row[c] =
+            static_cast<float>(128.0 + 60.0 * std::sin(2.0 * CV_PI * x / p.repetitive_period_px));
       }
     }
   }
@@ -90,8 +90,7 @@ SyntheticScene makeSyntheticScene(const SyntheticSceneParams& p) {
       const double xr = x - d;
       bool hidden = xr < -0.5 || xr > W - 0.5;
       if (!occ && !hidden && !p.occluder.empty()) {
-        hidden = onOccluder(xr + p.occluder_disparity_px, y) &&
-                 p.occluder_disparity_px > d;
+        hidden = onOccluder(xr + p.occluder_disparity_px, y) && p.occluder_disparity_px > d;
       }
       s.occluded.at<uint8_t>(y, x) = hidden ? 255 : 0;
     }
@@ -106,7 +105,10 @@ SyntheticScene makeSyntheticScene(const SyntheticSceneParams& p) {
       double xl = xr + backgroundDisparity(p, xr, y);
       for (int it = 0; it < 60; ++it) {
         const double nx = xr + backgroundDisparity(p, xl, y);
-        if (std::fabs(nx - xl) < 1e-9) { xl = nx; break; }
+        if (std::fabs(nx - xl) < 1e-9) {
+          xl = nx;
+          break;
+        }
         xl = nx;
       }
       rf.at<float>(y, xr) = sampleRow(bg, y, xl + margin);
@@ -119,7 +121,7 @@ SyntheticScene makeSyntheticScene(const SyntheticSceneParams& p) {
     rng.fill(n, cv::RNG::NORMAL, 0.0, p.noise_stdev);
     rf += n;
   }
-  lf.convertTo(s.left, CV_8U);   // saturate_cast rounds and clips to 0..255
+  lf.convertTo(s.left, CV_8U);  // saturate_cast rounds and clips to 0..255
   rf.convertTo(s.right, CV_8U);
   return s;
 }

@@ -25,32 +25,31 @@
 #pragma once
 
 #include <cstdint>
-
 #include <opencv2/core.hpp>
 
 namespace endo_stereo {
 
 /// Parameters of a synthetic scene. Disparities in px (x_left - x_right), intensities 0..255.
 struct SyntheticSceneParams {
-  int width = 320;                  ///< image width, px, >= 16
-  int height = 240;                 ///< image height, px, >= 16
-  uint32_t seed = 1;                ///< random texture and noise seed
+  int width = 320;    ///< image width, px, >= 16
+  int height = 240;   ///< image height, px, >= 16
+  uint32_t seed = 1;  ///< random texture and noise seed
   /// Background disparity d(x, y) = base + slope_x (x - cx) + slope_y (y - cy)
   ///   + curvature ((x - cx)^2 + (y - cy)^2), centre (cx, cy) = image centre.
   double base_disparity_px = 10.0;
-  double slope_x = 0.0;             ///< px of disparity per px along x, |slope_x| < 0.5
-  double slope_y = 0.0;             ///< px of disparity per px along y
-  double curvature = 0.0;           ///< px of disparity per px^2
-  double texture_stdev = 40.0;      ///< contrast of the random texture (before clipping to 0..255)
-  double texture_blur_px = 1.0;     ///< Gaussian sigma of the texture, px (0 = white noise)
-  double noise_stdev = 0.0;         ///< Gaussian sensor noise added to each view independently
-  cv::Rect occluder;                ///< in left pixels; empty = none
+  double slope_x = 0.0;          ///< px of disparity per px along x, |slope_x| < 0.5
+  double slope_y = 0.0;          ///< px of disparity per px along y
+  double curvature = 0.0;        ///< px of disparity per px^2
+  double texture_stdev = 40.0;   ///< contrast of the random texture (before clipping to 0..255)
+  double texture_blur_px = 1.0;  ///< Gaussian sigma of the texture, px (0 = white noise)
+  double noise_stdev = 0.0;      ///< Gaussian sensor noise added to each view independently
+  cv::Rect occluder;             ///< in left pixels; empty = none
   double occluder_disparity_px = 30.0;  ///< constant disparity of the occluder
-  cv::Rect textureless;             ///< region of the background (left pixels) with no texture
-  double textureless_value = 120.0; ///< its intensity
-  cv::Rect saturated;               ///< region of the background saturated at 255
-  cv::Rect repetitive;              ///< region of the background with vertical stripes
-  double repetitive_period_px = 8.0;///< stripe period, px
+  cv::Rect textureless;                 ///< region of the background (left pixels) with no texture
+  double textureless_value = 120.0;     ///< its intensity
+  cv::Rect saturated;                   ///< region of the background saturated at 255
+  cv::Rect repetitive;                  ///< region of the background with vertical stripes
+  double repetitive_period_px = 8.0;    ///< stripe period, px
 };
 
 /// A rendered pair with its ground truth.

@@ -18,22 +18,21 @@
 #pragma once
 
 #include <cstdint>
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 namespace endo_stereo {
 
 /// Scores of one disparity map within one mask.
 struct DisparityScore {
-  double bad1 = 0.0;      ///< share of output pixels with |d - gt| > 1 px, [0, 1]
-  double bad2 = 0.0;      ///< share of output pixels with |d - gt| > 2 px, [0, 1]
+  double bad1 = 0.0;            ///< share of output pixels with |d - gt| > 1 px, [0, 1]
+  double bad2 = 0.0;            ///< share of output pixels with |d - gt| > 2 px, [0, 1]
   double mean_abs_error = 0.0;  ///< mean |d - gt| over output pixels, px
-  double density = 0.0;   ///< n_out / n_gt, [0, 1]
-  int64_t n_out = 0;      ///< pixels in the mask with known ground truth and a finite disparity
-  int64_t n_gt = 0;       ///< pixels in the mask with known ground truth
-  int64_t n_bad1 = 0;     ///< output pixels with error > 1 px
-  int64_t n_bad2 = 0;     ///< output pixels with error > 2 px
+  double density = 0.0;         ///< n_out / n_gt, [0, 1]
+  int64_t n_out = 0;   ///< pixels in the mask with known ground truth and a finite disparity
+  int64_t n_gt = 0;    ///< pixels in the mask with known ground truth
+  int64_t n_bad1 = 0;  ///< output pixels with error > 1 px
+  int64_t n_bad2 = 0;  ///< output pixels with error > 2 px
 };
 
 /**
@@ -50,15 +49,15 @@ DisparityScore scoreDisparity(const cv::Mat& disparity, const cv::Mat& gt,
 /// the scale on line 1 of info.txt, 0 = unknown), nonocc.png, disc.png, all.png (white = in the
 /// mask), info.txt (line 1 scale, line 2 the largest disparity in px).
 struct MiddleburyScene {
-  std::string name;   ///< folder name
-  cv::Mat left;       ///< CV_8UC1 gray
-  cv::Mat right;      ///< CV_8UC1 gray
-  cv::Mat gt;         ///< CV_32FC1 px, NaN = unknown
-  cv::Mat nonocc;     ///< CV_8UC1 255 = non-occluded, else 0
-  cv::Mat disc;       ///< CV_8UC1 255 = near a depth discontinuity (and non-occluded), else 0
-  cv::Mat all;        ///< CV_8UC1 255 = ground truth defined, else 0
-  int scale = 1;      ///< ground-truth PNG value per px of disparity
-  int max_disp = 0;   ///< largest disparity of the scene, px (info.txt line 2)
+  std::string name;  ///< folder name
+  cv::Mat left;      ///< CV_8UC1 gray
+  cv::Mat right;     ///< CV_8UC1 gray
+  cv::Mat gt;        ///< CV_32FC1 px, NaN = unknown
+  cv::Mat nonocc;    ///< CV_8UC1 255 = non-occluded, else 0
+  cv::Mat disc;      ///< CV_8UC1 255 = near a depth discontinuity (and non-occluded), else 0
+  cv::Mat all;       ///< CV_8UC1 255 = ground truth defined, else 0
+  int scale = 1;     ///< ground-truth PNG value per px of disparity
+  int max_disp = 0;  ///< largest disparity of the scene, px (info.txt line 2)
 };
 
 /// Load a Middlebury-layout scene from @p dir. @throws std::runtime_error naming the missing or

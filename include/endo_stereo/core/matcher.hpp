@@ -9,6 +9,14 @@
  * filling) is configured by PostFilterParams and run by the matcher after matching.
  * See ../shared/METHOD.md sections 2 and 3.
  *
+ * Ours, in the default preset (the paper preset, config/paper.yaml, switches them off): a test
+ * against fattening at depth edges (a pixel whose accepting window straddles a disparity jump is
+ * rejected, edge_*), a least NCC for the best peak (min_ncc, stronger for narrowed per-pixel
+ * ranges), epsilon 1.5 px. Measurements: notes/matcher_design.md / BENCHMARKS.md.
+ *
+ * A pixel searches the disparities of its range for which both windows lie inside the images (the
+ * range is cut at the borders); pixels whose window leaves the image are not searched.
+ *
  * Use:
  * @code
  *   endo_stereo::MatcherParams mp;            // defaults = the trustworthy preset
@@ -25,9 +33,8 @@
 
 #include <array>
 #include <cstdint>
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 namespace endo_stereo {
 
@@ -41,7 +48,8 @@ struct MatcherParams {
   int window_min_px = 7;
   /// Window growth step, px; even, >= 2 (keeps widths odd).
   int window_step_px = 4;
-  /// Largest window width allowed, px; >= window_min_px. Widths tried: min, min+step, ... <= max.
+  /// Largest window width allowed, px, in [window_min_px, 32] (up to 32 x 32 the window sums are
+  /// exact in float). Widths tried: min, min+step, ... <= max (at most 16 of them).
   int window_max_px = 30;
   /// Structure threshold: stdev of the 3x3 Laplacian over the window, intensities 0..255. >= 0.
   double gamma_min = 0.5;
@@ -62,7 +70,9 @@ struct MatcherParams {
   double min_ncc_narrowed = 0.7;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
-  /// Worker threads; 0 = OpenCV's default. The output does not depend on this value.
+  /// Worker threads; 0 = OpenCV's default. When > 0, cv::setNumThreads() is set to it for the
+  /// duration of compute() and restored after (a process-wide OpenCV setting). The output does not
+  /// depend on this value.
   int num_threads = 0;
   // Ours, against window fattening at depth edges: see matcher.cpp and BENCHMARKS.md.
   /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity (its
@@ -103,16 +113,16 @@ struct PostFilterParams {
 
 /// Per-pixel outcome, stored in MatchResult::code (CV_8UC1).
 enum PixelCode : uint8_t {
-  kCodeNotSearched = 0,     ///< outside the matchable area (border, empty search range)
-  kCodeRejectStructure = 1, ///< last window tried failed the structure criterion (gamma)
-  kCodeRejectPeakGap = 2,   ///< last window tried failed the discrimination criterion (delta)
-  kCodeRejectLeftRight = 3, ///< last window tried failed the left-right consistency (epsilon)
-  kCodeRejectEdge = 4,      ///< rejected by our depth-edge (anti-fattening) measure
-  kCodeRejectOutlier = 5,   ///< accepted, then removed as an isolated outlier
-  kCodeNoPeak = 6,          ///< no local maximum inside the search range
-  kCodeFilled = 7,          ///< a 1-2 px hole filled by the median of its neighbours
-  kCodeAcceptedBase = 16,   ///< accepted at window index k: code = kCodeAcceptedBase + k,
-                            ///< window width = window_min_px + k * window_step_px
+  kCodeNotSearched = 0,      ///< outside the matchable area (border, empty search range)
+  kCodeRejectStructure = 1,  ///< last window tried failed the structure criterion (gamma)
+  kCodeRejectPeakGap = 2,    ///< last window tried failed the discrimination criterion (delta)
+  kCodeRejectLeftRight = 3,  ///< last window tried failed the left-right consistency (epsilon)
+  kCodeRejectEdge = 4,       ///< rejected by our depth-edge (anti-fattening) measure
+  kCodeRejectOutlier = 5,    ///< accepted, then removed as an isolated outlier
+  kCodeNoPeak = 6,           ///< no local maximum inside the search range
+  kCodeFilled = 7,           ///< a 1-2 px hole filled by the median of its neighbours
+  kCodeAcceptedBase = 16,    ///< accepted at window index k: code = kCodeAcceptedBase + k,
+                             ///< window width = window_min_px + k * window_step_px
 };
 
 /// Number of distinct rejection codes counted in MatchStats (codes 0..kCodeFilled).
@@ -124,12 +134,14 @@ struct MatchStats {
   std::array<int64_t, kNumRejectCodes> rejected{};
   /// Pixels accepted per window index (0 = window_min_px). Up to 16 window sizes.
   std::array<int64_t, 16> accepted_per_window{};
-  int64_t valid_pixels = 0;   ///< pixels with a finite disparity in the output (incl. filled)
-  int64_t total_pixels = 0;   ///< width * height
-  int64_t prior_pixels = 0;   ///< pixels searched with a narrowed (per-pixel) range
-  double density() const { return total_pixels ? double(valid_pixels) / double(total_pixels) : 0.0; }
-  double match_ms = 0.0;      ///< wall time of matching, ms
-  double filter_ms = 0.0;     ///< wall time of post-processing, ms
+  int64_t valid_pixels = 0;  ///< pixels with a finite disparity in the output (incl. filled)
+  int64_t total_pixels = 0;  ///< width * height
+  int64_t prior_pixels = 0;  ///< pixels searched with a narrowed (per-pixel) range
+  double density() const {
+    return total_pixels ? double(valid_pixels) / double(total_pixels) : 0.0;
+  }
+  double match_ms = 0.0;   ///< wall time of matching, ms
+  double filter_ms = 0.0;  ///< wall time of post-processing, ms
 };
 
 /// Output of RobustMatcher::compute(). Buffers are reused between calls.
