@@ -277,11 +277,43 @@ void TemporalPrior::update(const cv::Mat& disparity) {
   const int64_t judged = hits + misses;
   if (params_.min_prior_hit_share > 0.0 && judged > 0 && judged >= size_.area() / 20 &&
       double(hits) < params_.min_prior_hit_share * double(judged)) {
+    dropAll();
+  }
+}
+
+double TemporalPrior::hitShare(const cv::Mat& disparity, int64_t* judged) const {
+  checkDisparity(disparity, "TemporalPrior::hitShare");
+  int64_t n = 0, hits = 0;
+  if (!narrowed_.empty() && narrowed_.size() == disparity.size()) {
+    for (int y = 0; y < disparity.rows; ++y) {
+      const float* d = disparity.ptr<float>(y);
+      const uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
+      for (int x = 0; x < disparity.cols; ++x) {
+        if (!narrowed[x]) continue;
+        ++n;
+        hits += std::isfinite(d[x]);
+      }
+    }
+  }
+  if (judged) *judged = n;
+  return n ? double(hits) / double(n) : 1.0;
+}
+
+bool TemporalPrior::sceneChanged(const cv::Mat& disparity) const {
+  if (!(params_.min_prior_hit_share > 0.0)) return false;
+  int64_t judged = 0;
+  const double share = hitShare(disparity, &judged);
+  return judged > 0 && judged >= disparity.total() / 20 && share < params_.min_prior_hit_share;
+}
+
+void TemporalPrior::dropAll() {
+  if (!last_disparity_.empty()) {
     last_disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
     age_.setTo(kAgeNone);
     failures_.setTo(0);
-    stats_.scene_change = true;
   }
+  if (!narrowed_.empty()) narrowed_.setTo(0);
+  stats_.scene_change = true;
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -469,12 +501,29 @@ const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
   return priors_used_ ? &range_ : nullptr;
 }
 
+bool TemporalTracker::rejectPriors(const cv::Mat& disparity) {
+  checkDisparity(disparity, "TemporalTracker::rejectPriors");
+  if (!params_.enabled || !priors_used_ || !frame_open_) return false;
+  int64_t judged = 0;
+  const double share = prior_.hitShare(disparity, &judged);
+  if (!prior_.sceneChanged(disparity)) return false;
+  std::ostringstream os;
+  os << "scene change: " << std::lround(100.0 * share) << "% of " << judged
+     << " narrowed searches found a disparity (< " << 100.0 * params_.min_prior_hit_share
+     << "%); priors and fused disparities dropped, frame matched again over the full range";
+  pending_reason_ = os.str();
+  prior_.dropAll();
+  fusion_.reset();
+  priors_used_ = false;
+  return true;
+}
+
 void TemporalTracker::endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage) {
   checkDisparity(disparity, "TemporalTracker::endFrame");
   if (params_.enabled && frame_open_) {
     prior_.update(disparity);
     const TemporalPriorStats& s = prior_.stats();
-    if (s.scene_change) {
+    if (s.scene_change && pending_reason_.empty()) {
       std::ostringstream os;
       os << "scene change: " << s.prior_hits << " of " << (s.prior_hits + s.prior_misses)
          << " narrowed searches found a disparity (< " << params_.min_prior_hit_share

@@ -21,6 +21,8 @@
  *   std::string reset_reason;
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
  *   matcher.compute(left, right, match, range);          // nullptr = full range
+ *   if (range && temporal.rejectPriors(match.disparity))  // a scene cut: priors all wrong
+ *     matcher.compute(left, right, match, nullptr);      // this frame again, full range
  *   temporal.endFrame(match.disparity, want_fused, want_coverage);
  *   // temporal.prior().stats(), temporal.fusion().disparity() / age(),
  *   // temporal.coverage().longestRun(), temporal.coverage().stats(), coverage().colorImage()
@@ -174,6 +176,15 @@ class TemporalPrior {
    */
   void update(const cv::Mat& disparity);
 
+  /// Share of the latest buildRange()'s narrowed pixels that @p disparity (CV_32FC1, NaN invalid)
+  /// gives a valid value, in [0, 1] (1 when none was narrowed); @p judged gets their number.
+  double hitShare(const cv::Mat& disparity, int64_t* judged = nullptr) const;
+  /// Whether hitShare() says the scene changed (min_prior_hit_share; >= 5% of pixels judged).
+  bool sceneChanged(const cv::Mat& disparity) const;
+  /// Drop every prior now (a scene change); the next update() treats all pixels as searched over
+  /// the full range. Sets stats().scene_change.
+  void dropAll();
+
   /// Counters of the latest buildRange() / update().
   const TemporalPriorStats& stats() const { return stats_; }
   /// Most recent valid disparity per pixel (CV_32FC1, NaN none), regardless of age.
@@ -292,6 +303,16 @@ class TemporalTracker {
    *         The pointer stays valid until the next beginFrame().
    */
   const SearchRange* beginFrame(const TemporalFrameInfo& info, std::string* reset_reason = nullptr);
+
+  /**
+   * Optional, between matching and endFrame(): did the priors describe another scene (a cut, a
+   * jump of the endoscope)? When fewer than min_prior_hit_share of the narrowed searches found a
+   * disparity, the priors and fused disparities are dropped at once and true is returned: match
+   * the frame again over the full range (range = nullptr) and pass that result to endFrame().
+   * Without this call the same test runs inside endFrame() and only the next frame searches the
+   * full range (this frame's output keeps what the wrong priors let through).
+   */
+  bool rejectPriors(const cv::Mat& disparity);
 
   /**
    * After matching, with the frame's final disparity (CV_32FC1, NaN invalid).
