@@ -690,16 +690,40 @@ ES_KERNEL void boxRow(const cv::Mat& integral, int y, int r, int x0, int x1, dou
   }
 }
 
-ES_KERNEL void statsRow(int x0, int x1, double n, const double* sum, const double* sq,
-                        float* mean_or_sum, float* inv, bool as_mean) {
+// The row-wide statistics are the same expressions as invStd/gammaOf, written branch-free so
+// they vectorise: IEEE division, square root and conversions are correctly rounded in vector
+// and scalar form alike, so the values are bit-identical to the lazily computed ones. The
+// selects only replace values of lanes whose result is discarded. no-math-errno: the square
+// roots need no call to set errno (they never see a negative argument that is kept).
+#if defined(__GNUC__) && !defined(__clang__)
+#define ES_ROW_KERNEL ES_KERNEL __attribute__((optimize("no-math-errno")))
+#else
+#define ES_ROW_KERNEL ES_KERNEL
+#endif
+ES_ROW_KERNEL void statsRow(int x0, int x1, double n, const double* __restrict sum,
+                            const double* __restrict sq, float* __restrict mean_or_sum,
+                            float* __restrict inv, bool as_mean) {
+  const float nf = static_cast<float>(n);
   for (int x = x0; x <= x1; ++x) {
-    inv[x] = invStd(n, sum[x], sq[x]);
-    mean_or_sum[x] = static_cast<float>(as_mean ? (sum[x] - 128.0 * n) / n : sum[x] - 128.0 * n);
+    const double a = n * sq[x] - sum[x] * sum[x];
+    const bool ok = a > 0.5;
+    const float t = 1.f / std::sqrt(static_cast<float>(ok ? a : 1.0) / nf);
+    inv[x] = ok ? t : 0.f;
+  }
+  if (as_mean) {
+    for (int x = x0; x <= x1; ++x) mean_or_sum[x] = static_cast<float>((sum[x] - 128.0 * n) / n);
+  } else {
+    for (int x = x0; x <= x1; ++x) mean_or_sum[x] = static_cast<float>(sum[x] - 128.0 * n);
   }
 }
 
-ES_KERNEL void gammaRow(int x0, int x1, double n, const double* sum, const double* sq, float* g) {
-  for (int x = x0; x <= x1; ++x) g[x] = gammaOf(n, sum[x], sq[x]);
+ES_ROW_KERNEL void gammaRow(int x0, int x1, double n, const double* __restrict sum,
+                            const double* __restrict sq, float* __restrict g) {
+  const float nf = static_cast<float>(n);
+  for (int x = x0; x <= x1; ++x) {
+    const double a = n * sq[x] - sum[x] * sum[x];
+    g[x] = std::sqrt(std::max(0.f, static_cast<float>(a))) / nf;
+  }
 }
 
 /// All statistics of row y (columns r .. W - 1 - r), as computeMapL/R give them one by one.
@@ -1167,16 +1191,15 @@ inline void scanProfile(const float* prof, int n, int lo, float* best, float* be
                         float* best_r, float* second) {
   float b = kNegInf, sec = kNegInf;
   int bi = -1;
+  // Branch-free form of: at a local maximum, a higher value becomes the best (the old best
+  // competes), any other value competes. Maxima are rare but unpredictable.
   for (int i = 1; i + 1 < n; ++i) {
-    if (prof[i] > prof[i - 1] && prof[i] >= prof[i + 1]) {
-      if (prof[i] > b) {
-        sec = std::max(sec, b);
-        b = prof[i];
-        bi = i;
-      } else {
-        sec = std::max(sec, prof[i]);
-      }
-    }
+    const float v = prof[i];
+    const bool is_max = (v > prof[i - 1]) & (v >= prof[i + 1]);
+    const bool new_best = is_max & (v > b);
+    sec = std::max(sec, new_best ? b : (is_max ? v : kNegInf));
+    b = new_best ? v : b;
+    bi = new_best ? i : bi;
   }
   if (n >= 2 && prof[0] > prof[1]) sec = std::max(sec, prof[0]);
   if (n >= 2 && prof[n - 1] > prof[n - 2]) sec = std::max(sec, prof[n - 1]);

@@ -239,6 +239,7 @@ int main(int argc, char** argv) {
     auto t0 = std::chrono::steady_clock::now();
     const endo_stereo::SearchRange* range = tracker_with.beginFrame(info);
     matcher_with.compute(l, r, res_with, range);
+    if (range && tracker_with.rejectPriors(res_with.disparity)) matcher_with.compute(l, r, res_with, nullptr);
     tracker_with.endFrame(res_with.disparity, true, true);
     const double ms_with = msSince(t0);
     // 2. without priors

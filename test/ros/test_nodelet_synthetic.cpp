@@ -10,6 +10,7 @@
 
 #include <dynamic_reconfigure/Reconfigure.h>
 #include <gtest/gtest.h>
+#include <image_transport/image_transport.h>
 #include <ros/ros.h>
 #include <sensor_msgs/PointCloud2.h>
 #include <stereo_msgs/DisparityImage.h>
@@ -490,6 +491,41 @@ TEST_F(BadInput, NodeletStillRunsAfterAllOfIt) {
   const auto kv = test::statusValues(*diag, "/bad/reconstruction");
   EXPECT_GE(test::numberOr(kv, "pairs rejected", 0), 7);
   EXPECT_GE(test::numberOr(kv, "pairs processed", 0), 8);
+}
+
+// --- image_transport: compressed input.
+
+TEST(CompressedTransport, NodeletTakesCompressedImages) {
+  ros::NodeHandle nh;
+  const Scene& s = scene();
+  // PNG: lossless, so the pair is the same as over the raw transport.
+  nh.setParam("/comp/left/image_raw/compressed/format", std::string("png"));
+  nh.setParam("/comp/right/image_raw/compressed/format", std::string("png"));
+  image_transport::ImageTransport it(nh);
+  image_transport::Publisher left = it.advertise("/comp/left/image_raw", 5);
+  image_transport::Publisher right = it.advertise("/comp/right/image_raw", 5);
+  ros::Publisher li = nh.advertise<sensor_msgs::CameraInfo>("/comp/left/camera_info", 1, true);
+  ros::Publisher ri = nh.advertise<sensor_msgs::CameraInfo>("/comp/right/camera_info", 1, true);
+  Collector<stereo_msgs::DisparityImage> disparities(nh, "/comp/disparity");
+  // The nodelet (~image_transport: compressed) subscribes <base>/compressed, not the raw topic.
+  ASSERT_TRUE(waitUntil([&] { return left.getNumSubscribers() > 0 && right.getNumSubscribers() > 0; },
+                        10.0));
+  li.publish(s.left_info);
+  ri.publish(s.right_info);
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
+  while (disparities.count() == 0 && ros::WallTime::now() < deadline) {
+    const ros::Time t = nextStamp();
+    left.publish(test::imageMsg(s.frame.left, "bgr8", t, s.left_info.header.frame_id));
+    right.publish(test::imageMsg(s.frame.right, "bgr8", t, s.right_info.header.frame_id));
+    waitUntil([&] { return disparities.count() > 0; }, 1.0);
+  }
+  ASSERT_GT(disparities.count(), 0u) << "no disparity from compressed input";
+  auto d = disparities.all().front();
+  int64_t valid = 0;
+  for (uint32_t r = 0; r < d->image.height; ++r) {
+    for (uint32_t c = 0; c < d->image.width; ++c) valid += at(*d, r, c) >= d->min_disparity;
+  }
+  EXPECT_GT(double(valid) / (d->image.width * d->image.height), 0.3);
 }
 
 // --- tf2 target_frame.
