@@ -129,6 +129,7 @@ def f(v, fmt="%.1f"):
     return "n/a" if v is None else fmt % v
 cpu = subprocess.run("nproc", capture_output=True, text=True).stdout.strip()
 load = open("/proc/loadavg").read().split()[:3]
+pipeline_notes = []
 rows = ["| node | pairs in | outputs | dropped | output rate (Hz) | latency median (ms) | latency p90 (ms) | density |",
         "|---|---|---|---|---|---|---|---|"]
 for t in targets:
@@ -139,6 +140,10 @@ for t in targets:
     r = json.load(open(p)).get(ns, {})
     diag = r.get("nodelet_diagnostics", {})
     dropped = r.get("dropped_or_lost")
+    if diag.get("pipeline median (ms)") is not None:
+        pipeline_notes.append("endo_stereo's own diagnostics: latency (pair complete -> published) "
+                              "median %s ms, of which Pipeline::process median %s ms."
+                              % (diag.get("latency median (ms)"), diag.get("pipeline median (ms)")))
     if diag.get("pairs dropped") is not None:
         dropped = "%s (nodelet: %s dropped, %s rejected)" % (dropped, diag.get("pairs dropped"),
                                                              diag.get("pairs rejected"))
@@ -161,6 +166,7 @@ text = "\n".join([
     " with the same stamp at that listener. Output rate: disparities over the input's duration."
     " Dropped: input pairs without an output (endo_stereo keeps the newest pair and counts the"
     " pairs it replaced; stereo_image_proc drops inside its synchronizer and queues).",
+    *pipeline_notes,
     ""])
 os.makedirs(os.path.dirname(notes), exist_ok=True)
 open(notes, "w").write(text)

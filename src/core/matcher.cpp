@@ -35,6 +35,9 @@
 #include "endo_stereo/core/matcher.hpp"
 
 #include <algorithm>
+#if defined(__SSE2__)
+#include <immintrin.h>
+#endif
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -204,7 +207,8 @@ struct Scratch {
     upto.assign(nd, 0);
     block_a.assign(nb, 0);
     block_b.assign(nb, 0);
-    colsum.assign(static_cast<size_t>(w) * dpad, 0.f);
+    // + 8: rlAccumulate reads whole 8-lane groups past the last disparity of a column.
+    colsum.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
     col_row.assign(w, -10);
     col_k0.assign(w, 0);
     col_k1.assign(w, -1);
@@ -214,7 +218,7 @@ struct Scratch {
     req_k0.assign(w, 0);
     req_k1.assign(w, -1);
     hot.reserve(w);
-    hvec.assign(dpad, 0.f);
+    hvec.assign(dpad + 8, 0.f);
     dbl_a.assign(w + 64, 0.0);
     dbl_b.assign(w + 64, 0.0);
     prof.assign(dpad, 0.f);
@@ -256,6 +260,12 @@ ES_INLINE V8f load8(const float* p) {
 ES_INLINE void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
 ES_INLINE V8f max8(V8f a, V8f b) { return a > b ? a : b; }
 ES_INLINE V8f splat8(float f) { return V8f{f, f, f, f, f, f, f, f}; }
+// Whether any lane of a comparison mask is set.
+ES_INLINE bool anyLane(V8i m) {
+  typedef long long V4l __attribute__((vector_size(32)));
+  const V4l t = reinterpret_cast<V4l>(m);
+  return ((t[0] | t[1]) | (t[2] | t[3])) != 0;
+}
 
 // Sum of w consecutive 8-lane loads starting at p, with four partial sums so the additions do
 // not form one long dependency chain (exact: integer-valued data).
@@ -430,10 +440,12 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
       cand = max8(cand, lo_end ? a1 : vninf);
       cand = max8(cand, hi_end ? s : vninf);
       store8(second + i, max8(load8(second + i), cand));
-      store8(best + i, new_best ? a1 : bb);
-      store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
-      store8(best_l + i, new_best ? a2 : load8(best_l + i));
-      store8(best_r + i, new_best ? s : load8(best_r + i));
+      if (anyLane(new_best)) {  // rare: see sliceInterior
+        store8(best + i, new_best ? a1 : bb);
+        store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
+        store8(best_l + i, new_best ? a2 : load8(best_l + i));
+        store8(best_r + i, new_best ? s : load8(best_r + i));
+      }
       store8(p2 + i, own ? a1 : a2);
       store8(p1 + i, own ? s : a1);
     }
@@ -518,10 +530,13 @@ ES_KERNEL void sliceInterior(const SliceArgs& g) {
     const V8i new_best = is_max & (a1 > bb);
     const V8f cand = new_best ? bb : (is_max ? a1 : vninf);
     store8(second + i, max8(load8(second + i), cand));
-    store8(best + i, new_best ? a1 : bb);
-    store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
-    store8(best_l + i, new_best ? a2 : load8(best_l + i));
-    store8(best_r + i, new_best ? s : load8(best_r + i));
+    // A new best is rare once the profile has risen: skip the four selects and stores then.
+    if (anyLane(new_best)) {
+      store8(best + i, new_best ? a1 : bb);
+      store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
+      store8(best_l + i, new_best ? a2 : load8(best_l + i));
+      store8(best_r + i, new_best ? s : load8(best_r + i));
+    }
     store8(p2 + i, a1);
     store8(p1 + i, s);
     const V8f rv = load8(rb_v + i);
@@ -690,25 +705,46 @@ ES_KERNEL void boxRow(const cv::Mat& integral, int y, int r, int x0, int x1, dou
   }
 }
 
-// The row-wide statistics are the same expressions as invStd/gammaOf, written branch-free so
-// they vectorise: IEEE division, square root and conversions are correctly rounded in vector
-// and scalar form alike, so the values are bit-identical to the lazily computed ones. The
-// selects only replace values of lanes whose result is discarded. no-math-errno: the square
-// roots need no call to set errno (they never see a negative argument that is kept).
-#if defined(__GNUC__) && !defined(__clang__)
-#define ES_ROW_KERNEL ES_KERNEL __attribute__((optimize("no-math-errno")))
-#else
-#define ES_ROW_KERNEL ES_KERNEL
+// The row-wide statistics are the same expressions as invStd/gammaOf, split into passes that
+// vectorise: the double part, then the float square roots with SSE (the scalar std::sqrt keeps
+// an errno branch that blocks vectorisation). IEEE division, square root and conversions are
+// correctly rounded in vector and scalar form alike, so the values are bit-identical to the
+// lazily computed ones.
+/// p[i] := p[i] > 0 ? 1 / sqrt(p[i]) : 0, and (second form) p[i] := sqrt(p[i]) / den (p >= 0).
+void invSqrtRow(int n, float* p) {
+  int i = 0;
+#if defined(__SSE2__)
+  const __m128 one = _mm_set1_ps(1.f), zero = _mm_setzero_ps();
+  for (; i + 4 <= n; i += 4) {
+    const __m128 v = _mm_loadu_ps(p + i);
+    const __m128 r = _mm_div_ps(one, _mm_sqrt_ps(v));
+    _mm_storeu_ps(p + i, _mm_and_ps(_mm_cmpgt_ps(v, zero), r));
+  }
 #endif
-ES_ROW_KERNEL void statsRow(int x0, int x1, double n, const double* __restrict sum,
-                            const double* __restrict sq, float* __restrict mean_or_sum,
-                            float* __restrict inv, bool as_mean) {
+  for (; i < n; ++i) p[i] = p[i] > 0.f ? 1.f / std::sqrt(p[i]) : 0.f;
+}
+void sqrtDivRow(int n, float* p, float den) {
+  int i = 0;
+#if defined(__SSE2__)
+  const __m128 dv = _mm_set1_ps(den);
+  for (; i + 4 <= n; i += 4) {
+    _mm_storeu_ps(p + i, _mm_div_ps(_mm_sqrt_ps(_mm_loadu_ps(p + i)), dv));
+  }
+#endif
+  for (; i < n; ++i) p[i] = std::sqrt(p[i]) / den;
+}
+
+/// First pass of the NCC statistics: mean (left) or sum (right) of the window, and in @p inv
+/// the quotient (n sum L^2 - (sum L)^2) / n where it exceeds the flatness threshold, else 0;
+/// invSqrtRow turns it into the value of invStd.
+ES_KERNEL void statsRow(int x0, int x1, double n, const double* __restrict sum,
+                        const double* __restrict sq, float* __restrict mean_or_sum,
+                        float* __restrict inv, bool as_mean) {
   const float nf = static_cast<float>(n);
+  // a > 0.5 gives a quotient of at least 0.5 / 1024 (windows up to 32 x 32): > 0 marks it.
   for (int x = x0; x <= x1; ++x) {
     const double a = n * sq[x] - sum[x] * sum[x];
-    const bool ok = a > 0.5;
-    const float t = 1.f / std::sqrt(static_cast<float>(ok ? a : 1.0) / nf);
-    inv[x] = ok ? t : 0.f;
+    inv[x] = a > 0.5 ? static_cast<float>(a) / nf : 0.f;
   }
   if (as_mean) {
     for (int x = x0; x <= x1; ++x) mean_or_sum[x] = static_cast<float>((sum[x] - 128.0 * n) / n);
@@ -717,12 +753,13 @@ ES_ROW_KERNEL void statsRow(int x0, int x1, double n, const double* __restrict s
   }
 }
 
-ES_ROW_KERNEL void gammaRow(int x0, int x1, double n, const double* __restrict sum,
-                            const double* __restrict sq, float* __restrict g) {
-  const float nf = static_cast<float>(n);
+/// First pass of the structure values: max(0, n sum G^2 - (sum G)^2) as float; sqrtDivRow
+/// turns it into the value of gammaOf.
+ES_KERNEL void gammaRow(int x0, int x1, double n, const double* __restrict sum,
+                        const double* __restrict sq, float* __restrict g) {
   for (int x = x0; x <= x1; ++x) {
     const double a = n * sq[x] - sum[x] * sum[x];
-    g[x] = std::sqrt(std::max(0.f, static_cast<float>(a))) / nf;
+    g[x] = std::max(0.f, static_cast<float>(a));
   }
 }
 
@@ -742,9 +779,11 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
   boxRow<int>(c.im->int_l, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_l, y, r, x0, x1, b);
   statsRow(x0, x1, n, a, b, s.maps.mean_l.data(), s.maps.inv_l.data(), true);
+  invSqrtRow(x1 - x0 + 1, s.maps.inv_l.data() + x0);
   boxRow<int>(c.im->int_r, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_r, y, r, x0, x1, b);
   statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  invSqrtRow(x1 - x0 + 1, s.maps.inv_r.data() + x0);
   if (!with_gamma) {
     // Mirrored copies for the sparse engine's profiles: R statistics at x - d for increasing d.
     const int W = c.width;
@@ -757,9 +796,11 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
   boxRow<double>(c.im->int_lap_l, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_lap_l, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_l.data());
+  sqrtDivRow(x1 - x0 + 1, s.maps.gamma_l.data() + x0, static_cast<float>(n));
   boxRow<double>(c.im->int_lap_r, y, r, x0, x1, a);
   boxRow<double>(c.im->sq_lap_r, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_r.data());
+  sqrtDivRow(x1 - x0 + 1, s.maps.gamma_r.data() + x0, static_cast<float>(n));
 }
 
 inline void needMapL(const LevelContext& c, Scratch& s, int x, int y) {
@@ -1187,19 +1228,49 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
 
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1), the same rules as
 /// the streaming tracker of the dense engine.
-inline void scanProfile(const float* prof, int n, int lo, float* best, float* best_d, float* best_l,
-                        float* best_r, float* second) {
-  float b = kNegInf, sec = kNegInf;
+// Written as passes over the profile: the highest interior maximum, the first index holding it
+// (the streaming tracker keeps the first of equal values: strict >), then the highest other
+// maximum. Max is exact in any order, so the 8-lane passes give the tracker's values.
+ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* best,
+                           float* best_d, float* best_l, float* best_r, float* second) {
+  const V8f vninf = splat8(kNegInf);
+  auto isMax = [&](int i) { return (prof[i] > prof[i - 1]) & (prof[i] >= prof[i + 1]); };
+  float b = kNegInf;
+  {
+    V8f vb = vninf;
+    int i = 1;
+    for (; i + 9 <= n; i += 8) {  // interior indices i .. i + 7 <= n - 2
+      const V8f v = load8(prof + i);
+      const V8i m = (v > load8(prof + i - 1)) & (v >= load8(prof + i + 1));
+      vb = max8(vb, m ? v : vninf);
+    }
+    for (int k = 0; k < 8; ++k) b = std::max(b, vb[k]);
+    for (; i + 1 < n; ++i) {
+      if (isMax(i)) b = std::max(b, prof[i]);
+    }
+  }
   int bi = -1;
-  // Branch-free form of: at a local maximum, a higher value becomes the best (the old best
-  // competes), any other value competes. Maxima are rare but unpredictable.
-  for (int i = 1; i + 1 < n; ++i) {
-    const float v = prof[i];
-    const bool is_max = (v > prof[i - 1]) & (v >= prof[i + 1]);
-    const bool new_best = is_max & (v > b);
-    sec = std::max(sec, new_best ? b : (is_max ? v : kNegInf));
-    b = new_best ? v : b;
-    bi = new_best ? i : bi;
+  float sec = kNegInf;
+  if (b != kNegInf) {
+    for (int i = 1; i + 1 < n; ++i) {
+      if (prof[i] == b && isMax(i)) {
+        bi = i;
+        break;
+      }
+    }
+    V8f vs = vninf;
+    const V8i vbi = V8i{bi, bi, bi, bi, bi, bi, bi, bi};
+    int i = 1;
+    for (; i + 9 <= n; i += 8) {
+      const V8f v = load8(prof + i);
+      const V8i idx = V8i{i, i + 1, i + 2, i + 3, i + 4, i + 5, i + 6, i + 7};
+      const V8i m = (v > load8(prof + i - 1)) & (v >= load8(prof + i + 1)) & (idx != vbi);
+      vs = max8(vs, m ? v : vninf);
+    }
+    for (int k = 0; k < 8; ++k) sec = std::max(sec, vs[k]);
+    for (; i + 1 < n; ++i) {
+      if (i != bi && isMax(i)) sec = std::max(sec, prof[i]);
+    }
   }
   if (n >= 2 && prof[0] > prof[1]) sec = std::max(sec, prof[0]);
   if (n >= 2 && prof[n - 1] > prof[n - 2]) sec = std::max(sec, prof[n - 1]);
@@ -1267,11 +1338,22 @@ ES_KERNEL void rlAccumulate(int xa, int xb, int q, int r, int dmin, int nd, int 
                             const float* __restrict colsum, const int* __restrict k0,
                             const int* __restrict k1, float* __restrict h) {
   for (int k = 0; k < dp; ++k) h[k] = 0.f;
+  // Each column adds a run of at most w entries: whole 8-lane groups, the last one masked.
+  // Masked lanes add +0, which leaves every h unchanged (h starts at +0 and a sum of exact
+  // values never becomes -0); h and colsum are padded for the reads past the run.
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8f zero = splat8(0.f);
   for (int xx = xa; xx <= xb; ++xx) {
     const int ka = std::max({0, xx - q - dmin - r, k0[xx]});
     const int kb = std::min({nd - 1, xx - q - dmin + r, k1[xx]});
     const float* cs = colsum + static_cast<size_t>(xx) * dp;
-    for (int k = ka; k <= kb; ++k) h[k] += cs[k];
+    int k = ka;
+    for (; k + 8 <= kb + 1; k += 8) store8(h + k, load8(h + k) + load8(cs + k));
+    if (k <= kb) {
+      const int left = kb - k + 1;
+      const V8i m = lane < V8i{left, left, left, left, left, left, left, left};
+      store8(h + k, load8(h + k) + (m ? load8(cs + k) : zero));
+    }
   }
 }
 
@@ -1395,15 +1477,15 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   } else {
     // The NCC statistics of the columns any open pixel's profiles or right-to-left checks can
     // touch (within the disparity span of an open pixel), vectorised; structure values lazily.
-    int omin = W, omax = -1;
-    for (int x = r; x < W - r; ++x) {
-      if (st[x] == 0 && rlo[x] <= rhi[x]) {
-        omin = std::min(omin, x);
-        omax = x;
-      }
-    }
     // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
     if (c.uniform_ranges) {
+      int omin = W, omax = -1;
+      for (int x = r; x < W - r; ++x) {
+        if (st[x] == 0 && rlo[x] <= rhi[x]) {
+          omin = std::min(omin, x);
+          omax = x;
+        }
+      }
       const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
       computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
     }
@@ -1538,6 +1620,35 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
 // a wider window are also rejected when the w_min test fires. Min and max over each window size are
 // grey-level erosions/dilations of the map (invalid pixels neutral): O(pixels) per window size.
 // ---------------------------------------------------------------------------------------------
+/// Least of lo_src and greatest of hi_src over columns [x0, x1] and rows [y0, y1]. Neither
+/// holds NaN, so min and max are exact in any order: eight lanes, then the lanes folded.
+ES_KERNEL void windowMinMax(const cv::Mat& lo_src, const cv::Mat& hi_src, int x0, int x1, int y0,
+                            int y1, float* lo, float* hi) {
+  const float inf = std::numeric_limits<float>::infinity();
+  V8f va = splat8(inf), vb = splat8(-inf);
+  float a = inf, b = -inf;
+  for (int yy = y0; yy <= y1; ++yy) {
+    const float* ls = lo_src.ptr<float>(yy);
+    const float* hs = hi_src.ptr<float>(yy);
+    int xx = x0;
+    for (; xx + 8 <= x1 + 1; xx += 8) {
+      const V8f l = load8(ls + xx), h = load8(hs + xx);
+      va = l < va ? l : va;
+      vb = h > vb ? h : vb;
+    }
+    for (; xx <= x1; ++xx) {
+      a = std::min(a, ls[xx]);
+      b = std::max(b, hs[xx]);
+    }
+  }
+  for (int i = 0; i < 8; ++i) {
+    a = std::min(a, va[i]);
+    b = std::max(b, vb[i]);
+  }
+  *lo = a;
+  *hi = b;
+}
+
 void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
                           MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
                           cv::Mat& hi, cv::Mat& reject) {
@@ -1568,23 +1679,50 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
   reject.create(H, W, CV_8U);
   reject.setTo(0);
   // Pixels accepted per window size (the first window: nearly all of them; the larger ones: few).
-  std::vector<std::vector<cv::Point>> by_level(num_levels);
+  // Counted first; the pixels themselves are listed only for the levels scanned directly.
+  std::vector<size_t> level_count(num_levels, 0);
   for (int y = 0; y < H; ++y) {
     const uint8_t* c = out.code.ptr<uint8_t>(y);
     const uint8_t* k = window_idx.ptr<uint8_t>(y);
     for (int x = 0; x < W; ++x) {
-      if (c[x] >= kCodeAcceptedBase) by_level[k[x]].push_back(cv::Point(x, y));
+      if (c[x] >= kCodeAcceptedBase) ++level_count[k[x]];
+    }
+  }
+  auto levelCount = [&](int level) -> size_t {
+    // The w_min test also serves edge_window_max_px for the pixels of every window size.
+    return level == 0 && limit_w > 0 ? static_cast<size_t>(out.stats.total_pixels)
+                                     : level_count[level];
+  };
+  auto levelSide = [&](int level) {
+    return 2 * ((mp.window_min_px + level * mp.window_step_px) / 2 + margin) + 1;
+  };
+  // Many pixels: erosion/dilation of the whole map; few: a direct scan of each one's window.
+  auto scanDirectly = [&](int level) {
+    const size_t side = static_cast<size_t>(levelSide(level));
+    return !(levelCount(level) * side * side > static_cast<size_t>(H) * W * 8);
+  };
+  std::vector<std::vector<cv::Point>> by_level(num_levels);
+  std::vector<uint8_t> listed(num_levels, 0);
+  bool any_listed = false;
+  for (int level = 0; level < num_levels; ++level) {
+    listed[level] = levelCount(level) > 0 && scanDirectly(level);
+    if (listed[level]) by_level[level].reserve(level_count[level]);
+    any_listed = any_listed || listed[level];
+  }
+  for (int y = 0; y < H && any_listed; ++y) {
+    const uint8_t* c = out.code.ptr<uint8_t>(y);
+    const uint8_t* k = window_idx.ptr<uint8_t>(y);
+    for (int x = 0; x < W; ++x) {
+      if (c[x] >= kCodeAcceptedBase && listed[k[x]]) by_level[k[x]].push_back(cv::Point(x, y));
     }
   }
   auto straddles = [&](float d, float a, float b) { return d - a > below || b - d > above; };
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     const int half = w / 2 + margin;
-    const int side = 2 * half + 1;
-    // The w_min test also serves edge_window_max_px for the pixels of every window size.
+    const int side = levelSide(level);
     const bool all_levels = level == 0 && limit_w > 0;
-    const size_t count = all_levels ? out.stats.total_pixels : by_level[level].size();
-    if (count == 0) continue;
+    if (levelCount(level) == 0) continue;
     auto judge = [&](int x, int y, float a, float b) {
       const float d = out.disparity.at<float>(y, x);
       if (!straddles(d, a, b)) return;
@@ -1594,7 +1732,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
         reject.at<uint8_t>(y, x) = 1;
       }
     };
-    if (count * side * side > static_cast<size_t>(H) * W * 8) {
+    if (!scanDirectly(level)) {
       // Many pixels: separable erosion and dilation of the whole map.
       const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side));
       cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
@@ -1611,15 +1749,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat
     } else {
       // Few pixels: scan each one's window directly.
       for (const cv::Point& p : by_level[level]) {
-        float a = inf, b = -inf;
-        for (int yy = std::max(0, p.y - half); yy <= std::min(H - 1, p.y + half); ++yy) {
-          const float* ls = lo_src.ptr<float>(yy);
-          const float* hs = hi_src.ptr<float>(yy);
-          for (int xx = std::max(0, p.x - half); xx <= std::min(W - 1, p.x + half); ++xx) {
-            a = std::min(a, ls[xx]);
-            b = std::max(b, hs[xx]);
-          }
-        }
+        float a, b;
+        windowMinMax(lo_src, hi_src, std::max(0, p.x - half), std::min(W - 1, p.x + half),
+                     std::max(0, p.y - half), std::min(H - 1, p.y + half), &a, &b);
         judge(p.x, p.y, a, b);
       }
     }

@@ -3,6 +3,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <sstream>
 #include <stdexcept>
 
@@ -140,6 +141,7 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
         lo[x] = d[x];
         hi[x] = d[x];
         ++usable;
+        narrowed_.at<uint8_t>(y, x) = 2;  // EXPERIMENT: own prior
       } else {
         lo[x] = kNoPriorLo;
         hi[x] = kNoPriorHi;
@@ -189,8 +191,10 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
     for (int x = 0; x < size.width; ++x) {
       int a = min_disparity, b = max_disparity;
+      static const bool own_required = std::getenv("ES_OWN") != nullptr;
       if (refresh) {
         ++stats_.refresh_pixels;
+      } else if (own_required && narrowed[x] != 2) {
       } else if (lo_f[x] < 0.5f * kNoPriorLo) {
         float lo_d = lo_f[x], hi_d = hi_f[x];
         // Near a depth edge in the priors, the span of both sides (the edge may have moved).
@@ -209,6 +213,7 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
       }
       lo[x] = int16_t(a);
       hi[x] = int16_t(b);
+      narrowed[x] = 0;
       if (a > min_disparity || b < max_disparity) {
         narrowed[x] = 1;
         ++stats_.narrowed_pixels;

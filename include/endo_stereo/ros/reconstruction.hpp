@@ -137,7 +137,7 @@ class Reconstruction {
   std::unique_ptr<message_filters::Synchronizer<ExactPolicy>> exact_sync_;
   std::unique_ptr<message_filters::Synchronizer<ApproxPolicy>> approx_sync_;
   mutable std::mutex connect_mutex_;
-  bool subscribed_ = false;
+  std::atomic<bool> subscribed_{false};  // written under connect_mutex_, read by diagnostics
 
   // --- Outputs.
   ros::Publisher pub_disparity_, pub_points_, pub_fused_;
@@ -174,6 +174,7 @@ class Reconstruction {
   mutable std::mutex stats_mutex_;
   ReconstructionCounters counters_;
   std::deque<double> latencies_ms_;  // latest latencies, arrival -> published
+  std::deque<double> pipeline_ms_;   // latest Pipeline::process() times
   double last_density_ = 0.0;
   RectificationQuality last_quality_;
   bool last_priors_used_ = false;

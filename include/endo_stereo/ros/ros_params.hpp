@@ -51,8 +51,11 @@ struct RosParams {
   /// s, in [0, 3600].
   double restart_jump_back_s = 1.0;
   /// Disparity resolution written to DisparityImage::delta_d when sub-pixel refinement is on, px,
-  /// in (0, 1]. With it off, delta_d is 1. See reconstruction.cpp for the measurement behind the
-  /// default.
+  /// in (0, 1]; with it off, delta_d is 1 (integer peaks). The parabola fit gives continuous
+  /// values, so what can be defended is its precision: on the synthetic surgical scene at
+  /// endoscope scale (test_nodelet_synthetic) |d - d_true| of the accepted, non-bad pixels was
+  /// median 0.05-0.06 px, RMS 0.09-0.16 px across matcher versions; 0.1 px is that precision,
+  /// not a quantisation step (SGBM's 1/16 px is one). The test fails if the RMS exceeds 2 x this.
   double subpixel_delta_d = 0.1;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
