@@ -3,7 +3,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <sstream>
 #include <stdexcept>
 
@@ -41,6 +40,10 @@ std::string TemporalParams::validate() const {
     return rangeMessage("prior_neighbourhood_px", "[0, 16]", prior_neighbourhood_px);
   if (prior_edge_zone_px < 0 || prior_edge_zone_px > 64)
     return rangeMessage("prior_edge_zone_px", "[0, 64]", prior_edge_zone_px);
+  if (highlight_gray < 0 || highlight_gray > 255)
+    return rangeMessage("highlight_gray", "[0, 255]", highlight_gray);
+  if (highlight_margin_px < 0 || highlight_margin_px > 64)
+    return rangeMessage("highlight_margin_px", "[0, 64]", highlight_margin_px);
   if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
     return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
   if (max_prior_failures < 1 || max_prior_failures > 1000)
@@ -81,6 +84,7 @@ std::string TemporalResetDetector::check(const TemporalFrameInfo& info) {
     }
   }
   previous_ = info;
+  previous_.left_gray.release();  // only the stream's identity is kept, not the image
   has_previous_ = true;
   return reason.str();
 }
@@ -107,7 +111,7 @@ void TemporalPrior::reset() {
 }
 
 bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_disparity,
-                               SearchRange& range) {
+                               SearchRange& range, const cv::Mat& left_gray) {
   stats_ = TemporalPriorStats();
   if (size != size_ || min_disparity != min_disparity_ || max_disparity != max_disparity_ ||
       last_disparity_.empty()) {
@@ -141,7 +145,6 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
         lo[x] = d[x];
         hi[x] = d[x];
         ++usable;
-        narrowed_.at<uint8_t>(y, x) = 2;  // EXPERIMENT: own prior
       } else {
         lo[x] = kNoPriorLo;
         hi[x] = kNoPriorHi;
@@ -173,6 +176,18 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     cv::dilate(hi_f_, hi_f_, kernel);
   }
   const float edge_jump = 2.0f * float(params_.prior_radius_px);
+  const bool highlights = params_.highlight_gray > 0 && !left_gray.empty();
+  if (highlights) {
+    if (left_gray.type() != CV_8UC1 || left_gray.size() != size) {
+      throw std::invalid_argument("TemporalPrior::buildRange: left_gray must be CV_8UC1 of the range size");
+    }
+    cv::compare(left_gray, params_.highlight_gray, bright_, cv::CMP_GE);
+    const int m = params_.highlight_margin_px;
+    if (m > 0) {
+      cv::dilate(bright_, bright_,
+                 cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * m + 1, 2 * m + 1)));
+    }
+  }
 
   range.lo.create(size, CV_16SC1);
   range.hi.create(size, CV_16SC1);
@@ -186,15 +201,16 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     const float* hi_f = hi_f_.ptr<float>(y);
     const float* lo_e = edge_zone ? lo_e_.ptr<float>(y) : nullptr;
     const float* hi_e = edge_zone ? hi_e_.ptr<float>(y) : nullptr;
+    const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : nullptr;
     int16_t* lo = range.lo.ptr<int16_t>(y);
     int16_t* hi = range.hi.ptr<int16_t>(y);
     uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
     for (int x = 0; x < size.width; ++x) {
       int a = min_disparity, b = max_disparity;
-      static const bool own_required = std::getenv("ES_OWN") != nullptr;
       if (refresh) {
         ++stats_.refresh_pixels;
-      } else if (own_required && narrowed[x] != 2) {
+      } else if (bright && bright[x]) {
+        ++stats_.highlight_pixels;
       } else if (lo_f[x] < 0.5f * kNoPriorLo) {
         float lo_d = lo_f[x], hi_d = hi_f[x];
         // Near a depth edge in the priors, the span of both sides (the edge may have moved).
@@ -213,7 +229,6 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
       }
       lo[x] = int16_t(a);
       hi[x] = int16_t(b);
-      narrowed[x] = 0;
       if (a > min_disparity || b < max_disparity) {
         narrowed[x] = 1;
         ++stats_.narrowed_pixels;
@@ -502,7 +517,8 @@ const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
     range_.hi.release();
     return nullptr;
   }
-  priors_used_ = prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_);
+  priors_used_ =
+      prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_, info.left_gray);
   return priors_used_ ? &range_ : nullptr;
 }
 

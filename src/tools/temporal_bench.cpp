@@ -198,6 +198,15 @@ int main(int argc, char** argv) {
     pp.matcher.max_disparity = dmax;
   }
   for (const std::string& o : overrides) {
+    // Keys newer than the parameter loader are set here directly.
+    if (o.rfind("temporal.highlight_gray=", 0) == 0) {
+      pp.temporal.highlight_gray = std::atoi(o.c_str() + o.find('=') + 1);
+      continue;
+    }
+    if (o.rfind("temporal.highlight_margin_px=", 0) == 0) {
+      pp.temporal.highlight_margin_px = std::atoi(o.c_str() + o.find('=') + 1);
+      continue;
+    }
     const std::string e = endo_stereo::applyParamOverride(pp, o);
     if (!e.empty()) {
       std::cerr << e << "\n";
@@ -234,7 +243,7 @@ int main(int argc, char** argv) {
     cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
     const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
     const endo_stereo::TemporalFrameInfo info{l.size(), frame.stamp_s, 0, pp.matcher.min_disparity,
-                                              pp.matcher.max_disparity};
+                                              pp.matcher.max_disparity, l};
     // 1. with priors (timed: range building + matching + post-filter + prior/fusion/coverage update)
     auto t0 = std::chrono::steady_clock::now();
     const endo_stereo::SearchRange* range = tracker_with.beginFrame(info);

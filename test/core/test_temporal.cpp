@@ -19,13 +19,14 @@ const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 cv::Mat constantDisparity(cv::Size size, float d) { return cv::Mat(size, CV_32FC1, cv::Scalar(d)); }
 
-// Priors alone: no refresh stripes, edge zones or scene-change test, so every expected range is
-// easy to state.
+// Priors alone: no refresh stripes, edge zones, scene-change test or highlight rule, so every
+// expected range is easy to state.
 TemporalParams plainParams() {
   TemporalParams p;
   p.refresh_period_frames = 0;
   p.prior_edge_zone_px = 0;
   p.min_prior_hit_share = 0.0;
+  p.highlight_gray = 0;
   return p;
 }
 
@@ -245,6 +246,34 @@ TEST(TemporalPrior, EdgeZoneSpansBothSidesOfADepthEdge) {
   prior.update(d);
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
   EXPECT_EQ(prior.stats().edge_zone_pixels, 0);
+}
+
+TEST(TemporalPrior, SearchesTheFullRangeNearHighlights) {
+  TemporalParams p = plainParams();
+  p.highlight_gray = 250;
+  p.highlight_margin_px = 3;
+  TemporalPrior prior(p);
+  const cv::Size size(30, 20);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  prior.update(constantDisparity(size, 30.0f));
+  cv::Mat gray(size, CV_8UC1, cv::Scalar(120));
+  gray(cv::Rect(10, 10, 2, 2)).setTo(255);  // a saturated highlight
+  gray.at<uint8_t>(2, 25) = 249;            // bright, but below the threshold
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range, gray));
+  EXPECT_EQ(range.lo.at<int16_t>(10, 10), 0);   // on the highlight
+  EXPECT_EQ(range.hi.at<int16_t>(13, 14), 63);  // 3 px away: still within the margin
+  EXPECT_EQ(range.lo.at<int16_t>(10, 15), 26);  // 4 px away: the prior
+  EXPECT_EQ(range.lo.at<int16_t>(2, 25), 26);
+  EXPECT_EQ(prior.stats().highlight_pixels, 8 * 8);
+  // Without an image, or with the rule off, the prior applies everywhere.
+  prior.update(constantDisparity(size, 30.0f));
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(range.lo.at<int16_t>(10, 10), 26);
+  EXPECT_EQ(prior.stats().highlight_pixels, 0);
+  prior.update(constantDisparity(size, 30.0f));
+  EXPECT_THROW(prior.buildRange(size, 0, 63, range, cv::Mat(size, CV_16UC1, cv::Scalar(0))),
+               std::invalid_argument);
 }
 
 TEST(TemporalPrior, ResetsOnSizeOrRangeChange) {
@@ -591,7 +620,7 @@ TEST(TemporalTracker, RecoversFromASceneCutWithTheRealMatcher) {
     cv::cvtColor(frame.left, l, cv::COLOR_BGR2GRAY);
     cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
     std::string reason;
-    const SearchRange* range = tracker.beginFrame({l.size(), i / 25.0, 0, dmin, dmax}, &reason);
+    const SearchRange* range = tracker.beginFrame({l.size(), i / 25.0, 0, dmin, dmax, l}, &reason);
     with_priors.compute(l, r, res, range);
     const bool rejected = range && tracker.rejectPriors(res.disparity);
     EXPECT_EQ(rejected, i == 4) << "frame " << i;

@@ -17,7 +17,7 @@
  *   endo_stereo::TemporalTracker temporal(params.temporal);
  *   // per frame:
  *   endo_stereo::TemporalFrameInfo info{left.size(), stamp_s, calibration_generation,
- *                                       mp.min_disparity, mp.max_disparity};
+ *                                       mp.min_disparity, mp.max_disparity, left};
  *   std::string reset_reason;
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
  *   matcher.compute(left, right, match, range);          // nullptr = full range
@@ -59,6 +59,13 @@ struct TemporalParams {
   /// searches the span of both sides, [min - r, max + r] over the neighbourhood, so tissue that an
   /// instrument uncovers is searched at the tissue's disparity too. In [0, 64]; 0 = off.
   int prior_edge_zone_px = 16;
+  /// Specular highlights move with the view, and a narrowed search there loses the competitors
+  /// that let the criteria reject a highlight matched to itself: pixels within highlight_margin_px
+  /// of a left pixel at least this bright (gray, 0..255) search the full range. Needs
+  /// TemporalFrameInfo::left_gray. In [0, 255]; 0 = off.
+  int highlight_gray = 250;
+  /// See highlight_gray, px. In [0, 64].
+  int highlight_margin_px = 4;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
   /// In [1, 1000].
   int max_prior_age_frames = 3;
@@ -101,6 +108,9 @@ struct TemporalFrameInfo {
   uint64_t calibration_generation = 0;  ///< bump whenever the calibration changes
   int min_disparity = 0;              ///< matcher's full range, px, inclusive
   int max_disparity = 63;
+  /// The rectified left image (CV_8UC1) for the highlight rule (TemporalParams::highlight_gray);
+  /// empty = the rule is off for this frame. Not kept after beginFrame().
+  cv::Mat left_gray;
 };
 
 /**
@@ -131,6 +141,7 @@ struct TemporalPriorStats {
   int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
   int64_t refresh_pixels = 0;     ///< of those: in this frame's refresh stripes
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
+  int64_t highlight_pixels = 0;   ///< full-range pixels near a highlight (left_gray given)
   bool scene_change = false;      ///< update() dropped all priors: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
@@ -162,10 +173,12 @@ class TemporalPrior {
   /**
    * Build the search range of the next frame.
    * A change of size or full range against the stored state resets it first.
+   * @param left_gray optional rectified left image (CV_8UC1, @p size) for the highlight rule.
    * @return true when at least one pixel got a narrowed range (pass &range to the matcher);
    *         false when every pixel searches the full range (range cleared; pass nullptr).
    */
-  bool buildRange(cv::Size size, int min_disparity, int max_disparity, SearchRange& range);
+  bool buildRange(cv::Size size, int min_disparity, int max_disparity, SearchRange& range,
+                  const cv::Mat& left_gray = cv::Mat());
 
   /**
    * Record the frame's final disparity (CV_32FC1, NaN invalid, the size given to buildRange()).
@@ -203,6 +216,7 @@ class TemporalPrior {
   int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
   cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
   cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
+  cv::Mat bright_;          // scratch: near-highlight pixels
   TemporalPriorStats stats_;
 };
 
