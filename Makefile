@@ -1,6 +1,6 @@
-# endo_stereo: plain entry points. WS = the git-ignored catkin workspace (default ./ws).
+# endo_stereo: plain entry points. WS = the git-ignored catkin workspace (default ./.ws: hidden, so that roslaunch/rostest file lookups, which skip dot-folders, do not follow the ws/src/endo_stereo symlink back into the repository).
 SHELL := /bin/bash
-WS ?= $(CURDIR)/ws
+WS ?= $(CURDIR)/.ws
 export WS
 
 .PHONY: all deps build test bench demo clean help asan tsan fuzz soak

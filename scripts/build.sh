@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Builds endo_stereo in the catkin workspace $WS (default ./ws): WS/src/endo_stereo -> repository.
+# Builds endo_stereo in the catkin workspace $WS (default ./.ws): WS/src/endo_stereo -> repository.
 # Extra arguments go to catkin_make (e.g. a target name).
 set -euo pipefail
 source "$(dirname "$0")/env.sh"
