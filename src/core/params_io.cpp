@@ -251,6 +251,10 @@ const std::vector<Entry>& table() {
                       &TemporalParams::prior_neighbourhood_px));
     t.push_back(field("temporal", "prior_edge_zone_px", &PP::temporal,
                       &TemporalParams::prior_edge_zone_px));
+    t.push_back(
+        field("temporal", "highlight_gray", &PP::temporal, &TemporalParams::highlight_gray));
+    t.push_back(field("temporal", "highlight_margin_px", &PP::temporal,
+                      &TemporalParams::highlight_margin_px));
     t.push_back(field("temporal", "max_prior_age_frames", &PP::temporal,
                       &TemporalParams::max_prior_age_frames));
     t.push_back(field("temporal", "max_prior_failures", &PP::temporal,

@@ -123,6 +123,7 @@ const StereoRectifier& Pipeline::rectifier() const { return impl_->rectifier; }
 bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::string* error) {
   const auto t_start = Clock::now();
   out.priors_used = false;
+  out.priors_rejected = false;
   out.priors_reset = false;
   out.reset_reason.clear();
   out.prior_stats = TemporalPriorStats();
@@ -177,6 +178,7 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     info.calibration_generation = impl_->rectifier.generation();
     info.min_disparity = params_.matcher.min_disparity;
     info.max_disparity = params_.matcher.max_disparity;
+    info.left_gray = out.left_rect_gray;  // for the highlight rule (not kept by the tracker)
     std::string reason;
     const SearchRange* range = impl_->temporal.beginFrame(info, &reason);
     out.priors_reset = !reason.empty();
@@ -187,6 +189,13 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     // --- matching and post-filtering.
     t = Clock::now();
     impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, out.match, range);
+    if (range && impl_->temporal.rejectPriors(out.match.disparity)) {
+      // The priors described another scene (a cut, a jump of the endoscope): rather than output
+      // what the wrong narrowed ranges let through, match this frame again over the full range.
+      impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, out.match, nullptr);
+      out.priors_used = false;
+      out.priors_rejected = true;
+    }
     out.match_ms = msSince(t);
 
     // --- priors for the next frame, fusion, coverage.

@@ -23,6 +23,9 @@ std::string rangeMessage(const char* field, const std::string& range, double val
 constexpr float kNoPriorLo = 1e9f;
 constexpr float kNoPriorHi = -1e9f;
 
+// Block size of the coarse min / max grid behind the edge zone, px.
+constexpr int kEdgeBlock = 4;
+
 inline uint16_t saturatingIncrement(uint16_t v) { return v == kAgeNone ? v : uint16_t(v + 1); }
 
 void checkDisparity(const cv::Mat& disparity, const char* who) {
@@ -165,9 +168,29 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
   const int e = params_.prior_edge_zone_px;
   const bool edge_zone = e > params_.prior_neighbourhood_px;
   if (edge_zone) {
-    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * e + 1, 2 * e + 1));
-    cv::erode(lo_f_, lo_e_, kernel);
-    cv::dilate(hi_f_, hi_e_, kernel);
+    // The edge zone is wide (33 x 33 by default): min / max over kEdgeBlock^2 blocks first, then
+    // over the blocks within ceil(e / kEdgeBlock) blocks. A pixel's zone then covers at least e px
+    // around it (up to e + 2 * kEdgeBlock - 1), at a fraction of a full-resolution filter's cost.
+    const cv::Size blocks((size.width + kEdgeBlock - 1) / kEdgeBlock,
+                          (size.height + kEdgeBlock - 1) / kEdgeBlock);
+    lo_e_.create(blocks, CV_32FC1);
+    hi_e_.create(blocks, CV_32FC1);
+    lo_e_.setTo(kNoPriorLo);
+    hi_e_.setTo(kNoPriorHi);
+    for (int y = 0; y < size.height; ++y) {
+      const float* lo = lo_f_.ptr<float>(y);
+      const float* hi = hi_f_.ptr<float>(y);
+      float* blo = lo_e_.ptr<float>(y / kEdgeBlock);
+      float* bhi = hi_e_.ptr<float>(y / kEdgeBlock);
+      for (int x = 0; x < size.width; ++x) {
+        blo[x / kEdgeBlock] = std::min(blo[x / kEdgeBlock], lo[x]);
+        bhi[x / kEdgeBlock] = std::max(bhi[x / kEdgeBlock], hi[x]);
+      }
+    }
+    const int eb = (e + kEdgeBlock - 1) / kEdgeBlock;
+    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * eb + 1, 2 * eb + 1));
+    cv::erode(lo_e_, lo_e_, kernel);
+    cv::dilate(hi_e_, hi_e_, kernel);
   }
   const int k = params_.prior_neighbourhood_px;
   if (k > 0) {
@@ -199,8 +222,8 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     const bool refresh = period > 0 && (y / kRefreshStripeRows) % period == refresh_phase;
     const float* lo_f = lo_f_.ptr<float>(y);
     const float* hi_f = hi_f_.ptr<float>(y);
-    const float* lo_e = edge_zone ? lo_e_.ptr<float>(y) : nullptr;
-    const float* hi_e = edge_zone ? hi_e_.ptr<float>(y) : nullptr;
+    const float* lo_e = edge_zone ? lo_e_.ptr<float>(y / kEdgeBlock) : nullptr;
+    const float* hi_e = edge_zone ? hi_e_.ptr<float>(y / kEdgeBlock) : nullptr;
     const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : nullptr;
     int16_t* lo = range.lo.ptr<int16_t>(y);
     int16_t* hi = range.hi.ptr<int16_t>(y);
@@ -214,9 +237,9 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
       } else if (lo_f[x] < 0.5f * kNoPriorLo) {
         float lo_d = lo_f[x], hi_d = hi_f[x];
         // Near a depth edge in the priors, the span of both sides (the edge may have moved).
-        if (edge_zone && hi_e[x] - lo_e[x] > edge_jump) {
-          lo_d = lo_e[x];
-          hi_d = hi_e[x];
+        if (edge_zone && hi_e[x / kEdgeBlock] - lo_e[x / kEdgeBlock] > edge_jump) {
+          lo_d = lo_e[x / kEdgeBlock];
+          hi_d = hi_e[x / kEdgeBlock];
           ++stats_.edge_zone_pixels;
         }
         a = std::max(min_disparity, int(std::floor(lo_d - r)));

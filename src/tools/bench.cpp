@@ -7,7 +7,6 @@
 // Timings are medians of repeated runs, methods interleaved within each repetition so that a
 // change of machine load affects all of them alike.
 #include <spawn.h>
-#include <sys/resource.h>
 #include <sys/stat.h>
 #include <sys/wait.h>
 #include <unistd.h>
@@ -70,6 +69,19 @@ struct Options {
   int repeats = 5;
   bool quick = false;
 };
+
+double processCpuMs() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+std::string loadAverage() {
+  std::ifstream in("/proc/loadavg");
+  std::string a, b, c;
+  in >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
 
 double msSince(Clock::time_point t) {
   return std::chrono::duration<double, std::milli>(Clock::now() - t).count();
@@ -134,7 +146,7 @@ endo_stereo::PipelineParams loadPreset(const std::string& root, const std::strin
 }
 
 Method ourMethod(const std::string& name, const endo_stereo::PipelineParams& preset,
-                 int threads = 0, double delta_min = -1.0) {
+                 int threads = 0) {
   auto matcher = std::make_shared<std::unique_ptr<endo_stereo::RobustMatcher>>();
   auto result = std::make_shared<endo_stereo::MatchResult>();
   Method m;
@@ -144,7 +156,6 @@ Method ourMethod(const std::string& name, const endo_stereo::PipelineParams& pre
     mp.min_disparity = s.min_disparity;
     mp.max_disparity = s.min_disparity + s.num_disparities - 1;
     mp.num_threads = threads;
-    if (delta_min >= 0) mp.delta_min = delta_min;
     *matcher = std::make_unique<endo_stereo::RobustMatcher>(mp, preset.filter);
   };
   m.compute = [=](const Scene& s, cv::Mat& disparity) {
@@ -324,6 +335,8 @@ struct Row {
   endo_stereo::DisparityScore nonocc, disc;
   double median_ms = 0;
   std::vector<double> times_ms;
+  double median_cpu_ms = 0;  // CPU time of the whole process (all threads) during the call
+  std::vector<double> cpu_ms;
   double ratio_sgbm = 0;  // median time / SGBM's median time on the same scene
 };
 
@@ -333,9 +346,11 @@ std::vector<Row> runScene(const Scene& s, std::vector<Method>& methods, int repe
   for (size_t m = 0; m < methods.size(); ++m) methods[m].prepare(s);
   for (int r = 0; r < repeats; ++r) {
     for (size_t m = 0; m < methods.size(); ++m) {
+      const double cpu = processCpuMs();
       const auto t = Clock::now();
       methods[m].compute(s, outputs[m]);
       rows[m].times_ms.push_back(msSince(t));
+      rows[m].cpu_ms.push_back(processCpuMs() - cpu);
     }
   }
   double sgbm_ms = 0;
@@ -343,6 +358,7 @@ std::vector<Row> runScene(const Scene& s, std::vector<Method>& methods, int repe
     rows[m].scene = s.name;
     rows[m].method = methods[m].name;
     rows[m].median_ms = median(rows[m].times_ms);
+    rows[m].median_cpu_ms = median(rows[m].cpu_ms);
     rows[m].nonocc = endo_stereo::scoreDisparity(outputs[m], s.gt, s.nonocc);
     if (!s.disc.empty()) rows[m].disc = endo_stereo::scoreDisparity(outputs[m], s.gt, s.disc);
     if (methods[m].name == "OpenCV SGBM") sgbm_ms = rows[m].median_ms;
@@ -382,6 +398,7 @@ void writeRows(JsonWriter& j, const std::vector<Row>& rows) {
     j.key("disc");
     writeScore(j, r.disc);
     j.key("median_ms").value(r.median_ms).key("time_over_sgbm").value(r.ratio_sgbm);
+    j.key("median_cpu_ms").value(r.median_cpu_ms);
     j.key("times_ms").beginArray();
     for (double t : r.times_ms) j.value(t);
     j.endArray();
@@ -392,43 +409,58 @@ void writeRows(JsonWriter& j, const std::vector<Row>& rows) {
 
 // --- peak memory: a fresh child process runs only our matcher -------------------------------
 
-// Child side: `--rss-probe LEFT RIGHT MIN MAX MODE [GT.pfm]`, MODE full | prior. Loads the pair,
-// matches it three times and exits; the parent reads the child's peak RSS from wait4().
+// The high-water mark of this process's resident memory (VmHWM), KiB. Unlike getrusage()'s
+// ru_maxrss, which Linux carries across execve() from the parent, VmHWM belongs to the current
+// address space, so a freshly spawned probe reports its own peak only.
+long peakRssKib() {
+  std::ifstream in("/proc/self/status");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("VmHWM:", 0) == 0) return std::atol(line.c_str() + 6);
+  }
+  return -1;
+}
+
+// Child side: `--rss-probe OUT LEFT RIGHT MIN MAX MODE [GT.pfm]`, MODE full | prior | sgbm. Loads
+// the pair, matches it three times, writes its peak RSS (KiB) to OUT and exits.
 int rssProbe(int argc, char** argv) {
-  if (argc < 7) return 2;
-  const cv::Mat left = cv::imread(argv[2], cv::IMREAD_GRAYSCALE);
-  const cv::Mat right = cv::imread(argv[3], cv::IMREAD_GRAYSCALE);
+  if (argc < 8) return 2;
+  const cv::Mat left = cv::imread(argv[3], cv::IMREAD_GRAYSCALE);
+  const cv::Mat right = cv::imread(argv[4], cv::IMREAD_GRAYSCALE);
   if (left.empty() || right.empty()) return 3;
-  const std::string mode = argv[6];
+  const std::string mode = argv[7];
   endo_stereo::MatcherParams mp;
-  mp.min_disparity = std::atoi(argv[4]);
-  mp.max_disparity = std::atoi(argv[5]);
-  if (mode == "sgbm") {
+  mp.min_disparity = std::atoi(argv[5]);
+  mp.max_disparity = std::atoi(argv[6]);
+  if (mode == "none") {
+    // The baseline: the program and its libraries with the two images loaded, no matching.
+  } else if (mode == "sgbm") {
     auto sgbm = makeSgbm(mp.min_disparity, mp.max_disparity - mp.min_disparity + 1);
     cv::Mat raw;
     for (int i = 0; i < 3; ++i) sgbm->compute(left, right, raw);
-    return 0;
+  } else {
+    endo_stereo::RobustMatcher matcher(mp, endo_stereo::PostFilterParams{});
+    endo_stereo::MatchResult result;
+    endo_stereo::SearchRange range;
+    if (mode == "prior") {
+      if (argc < 9) return 2;
+      const cv::Mat gt = endo_stereo::readPfm(argv[8]);
+      if (gt.empty()) return 3;
+      cv::Mat rounded;
+      gt.convertTo(rounded, CV_16S);  // rounds to nearest
+      range.lo = rounded - 4;
+      range.hi = rounded + 4;
+    }
+    for (int i = 0; i < 3; ++i)
+      matcher.compute(left, right, result, range.empty() ? nullptr : &range);
   }
-  endo_stereo::RobustMatcher matcher(mp, endo_stereo::PostFilterParams{});
-  endo_stereo::MatchResult result;
-  endo_stereo::SearchRange range;
-  if (mode == "prior") {
-    if (argc < 8) return 2;
-    const cv::Mat gt = endo_stereo::readPfm(argv[7]);
-    if (gt.empty()) return 3;
-    cv::Mat rounded;
-    gt.convertTo(rounded, CV_16S);  // rounds to nearest
-    range.lo = rounded - 4;
-    range.hi = rounded + 4;
-  }
-  for (int i = 0; i < 3; ++i)
-    matcher.compute(left, right, result, range.empty() ? nullptr : &range);
+  std::ofstream(argv[2]) << peakRssKib() << "\n";
   return 0;
 }
 
-// Parent side. @return peak RSS in MiB, or NaN when the probe failed.
-double probePeakRss(const std::vector<std::string>& args) {
-  std::vector<std::string> all = {"/proc/self/exe", "--rss-probe"};
+// Parent side: spawns this program as a probe. @return its peak RSS in MiB, NaN on failure.
+double probePeakRss(const std::string& out_file, const std::vector<std::string>& args) {
+  std::vector<std::string> all = {"endo_stereo_bench", "--rss-probe", out_file};
   all.insert(all.end(), args.begin(), args.end());
   std::vector<char*> argv;
   for (auto& a : all) argv.push_back(const_cast<char*>(a.c_str()));
@@ -442,11 +474,13 @@ double probePeakRss(const std::vector<std::string>& args) {
     return std::numeric_limits<double>::quiet_NaN();
   }
   int status = 0;
-  struct rusage usage {};
-  if (::wait4(pid, &status, 0, &usage) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
+  if (::waitpid(pid, &status, 0) != pid || !WIFEXITED(status) || WEXITSTATUS(status) != 0) {
     return std::numeric_limits<double>::quiet_NaN();
   }
-  return usage.ru_maxrss / 1024.0;  // ru_maxrss is in KiB on Linux
+  long kib = -1;
+  std::ifstream(out_file) >> kib;
+  std::remove(out_file.c_str());
+  return kib > 0 ? kib / 1024.0 : std::numeric_limits<double>::quiet_NaN();
 }
 
 // --- machine ---------------------------------------------------------------------------------
@@ -513,9 +547,9 @@ int main(int argc, char** argv) {
   std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M %Z", std::localtime(&now));
   std::printf(
       "# endo_stereo benchmark\n\nmachine: %s, %u logical CPUs, OpenCV %s with %d threads; "
-      "%s; %d repetitions per timing (median)\n\n",
+      "%s; %d repetitions per timing (median); load average at start %s\n\n",
       cpuModel().c_str(), std::max(1u, static_cast<unsigned>(sysconf(_SC_NPROCESSORS_ONLN))),
-      CV_VERSION, hw_threads, date, o.repeats);
+      CV_VERSION, hw_threads, date, o.repeats, loadAverage().c_str());
 
   std::string note_default, note_paper;
   const endo_stereo::PipelineParams preset_default = loadPreset(o.root, "default", &note_default);
@@ -530,6 +564,7 @@ int main(int argc, char** argv) {
   j.key("opencv").value(CV_VERSION);
   j.key("opencv_threads").value(hw_threads);
   j.key("repeats").value(o.repeats);
+  j.key("load_average_start").value(loadAverage());
 
   // --- 1. accuracy and speed on scenes with ground truth --------------------------------------
   std::vector<Scene> scenes;
@@ -607,13 +642,19 @@ int main(int argc, char** argv) {
   const int timing_repeats = std::max(o.repeats, o.quick ? 1 : 7);
   const std::vector<Row> timing_rows = runScene(big, timing, timing_repeats);
   std::printf(
-      "| method | median ms | min ms | time / SGBM | bad2 %% | density %% |\n"
-      "|---|---:|---:|---:|---:|---:|\n");
+      "| method | median ms | min ms | time / SGBM | median CPU ms | CPU / SGBM CPU | bad2 %% | "
+      "density %% |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
+  double sgbm_cpu = 0;
   for (const Row& r : timing_rows) {
-    std::printf("| %s | %.1f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(), r.median_ms,
-                *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
+    if (r.method == "OpenCV SGBM") sgbm_cpu = r.median_cpu_ms;
+  }
+  for (const Row& r : timing_rows) {
+    std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(),
+                r.median_ms, *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
+                r.median_cpu_ms, sgbm_cpu > 0 ? r.median_cpu_ms / sgbm_cpu : 0.0,
                 100 * r.nonocc.bad2, 100 * r.nonocc.density);
   }
+  std::printf("(load average after the timing: %s)\n", loadAverage().c_str());
   j.key("timing_960x540");
   writeRows(j, timing_rows);
 
@@ -629,32 +670,38 @@ int main(int argc, char** argv) {
       endo_stereo::writePfm(d + "/gt.pfm", big.gt);
       const std::string lo = std::to_string(big.min_disparity);
       const std::string hi = std::to_string(big.min_disparity + big.num_disparities - 1);
-      const double rss_full = probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "full"});
+      const std::string rss = d + "/rss.txt";
+      const double rss_full = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "full"});
       const double rss_prior =
-          probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "prior", d + "/gt.pfm"});
-      const double rss_sgbm = probePeakRss({d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
+          probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "prior", d + "/gt.pfm"});
+      const double rss_sgbm = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
+      const double rss_base = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "none"});
       std::printf(
           "\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
-          "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB\n",
-          big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm);
+          "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB (the same process loading the images "
+          "without matching: %.1f MiB)\n",
+          big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm, rss_base);
       j.key("peak_rss_mib").beginObject();
       j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
-      j.key("sgbm").value(rss_sgbm);
+      j.key("sgbm").value(rss_sgbm).key("baseline_no_matching").value(rss_base);
       j.endObject();
       for (const char* f : {"/l.png", "/r.png", "/gt.pfm"}) std::remove((d + f).c_str());
       ::rmdir(dir);
     }
   }
 
-  // --- 3. precision-density: our main knob (delta_min) beside SGBM's uniquenessRatio ----------
+  // --- 3. precision-density: our knobs beside SGBM's uniquenessRatio --------------------------
   std::printf("\n## Precision-density sweep (%s)\n\n",
               have_middlebury ? "pooled over the Middlebury scenes, nonocc"
                               : "synthetic scenes only: Middlebury missing");
   const std::vector<double> deltas =
       o.quick ? std::vector<double>{0.05, 0.2}
               : std::vector<double>{0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6};
+  const std::vector<double> jumps =
+      o.quick ? std::vector<double>{2.0} : std::vector<double>{1.0, 1.5, 2.0, 3.0, 4.0, 6.0};
   const std::vector<int> uniqueness =
-      o.quick ? std::vector<int>{5, 20} : std::vector<int>{0, 5, 10, 15, 20, 30, 40, 50, 60};
+      o.quick ? std::vector<int>{5, 20}
+              : std::vector<int>{0, 5, 10, 15, 20, 30, 40, 50, 60, 70, 80, 100};
   const size_t sweep_scenes = have_middlebury ? num_middlebury : scenes.size();
   std::ofstream csv(o.curve);
   csv << "method,knob,value,scene,bad1,bad2,density,n_out,n_gt\n";
@@ -689,8 +736,24 @@ int main(int argc, char** argv) {
     j.key("bad1").value(b1).key("bad2").value(b2).key("density").value(dens);
     j.endObject();
   };
+  // Our knobs through the same key names as the presets and --set (params_io.hpp).
+  auto ours_with = [&](const std::string& key, double value) {
+    endo_stereo::PipelineParams p = preset_default;
+    char text[32];
+    std::snprintf(text, sizeof(text), "%g", value);
+    const std::string err = endo_stereo::setPipelineParam(p, key, text);
+    if (!err.empty()) std::fprintf(stderr, "endo_stereo_bench: %s\n", err.c_str());
+    return ourMethod("ours", p);
+  };
   for (double dm : deltas) {
-    sweep("ours (default)", "delta_min", dm, ourMethod("ours", preset_default, 0, dm));
+    sweep("ours (default)", "delta_min", dm, ours_with("matcher.delta_min", dm));
+  }
+  // The paper's knob is not monotone once the edge test is on (METHOD.md: pixels rejected at
+  // small windows go on to larger ones, which fatten more); the edge test's threshold is the
+  // knob that trades precision for density in the default preset, so it is swept too.
+  for (double jump : jumps) {
+    sweep("ours (default)", "edge_disparity_jump_px", jump,
+          ours_with("matcher.edge_disparity_jump_px", jump));
   }
   for (int u : uniqueness) {
     sweep("OpenCV SGBM", "uniquenessRatio", u, sgbmMethod("OpenCV SGBM", u));

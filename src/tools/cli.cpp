@@ -353,7 +353,7 @@ struct FrameRecord {
   endo_stereo::MatchStats match;
   endo_stereo::TemporalPriorStats prior;
   endo_stereo::RectificationQuality quality;
-  bool priors_used = false, priors_reset = false;
+  bool priors_used = false, priors_rejected = false, priors_reset = false;
   std::string reset_reason;
   double preprocess_ms = 0, rectify_ms = 0, match_ms = 0, temporal_ms = 0, cloud_ms = 0,
          total_ms = 0;
@@ -466,12 +466,16 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
     j.key("cloud").value(f.cloud_ms);
     j.endObject();
     j.key("priors_used").value(f.priors_used);
+    j.key("priors_rejected").value(f.priors_rejected);
     j.key("priors_reset").value(f.priors_reset);
     if (f.priors_reset) j.key("reset_reason").value(f.reset_reason);
     j.key("prior").beginObject();
     j.key("narrowed_pixels").value(f.prior.narrowed_pixels);
     j.key("full_range_pixels").value(f.prior.full_range_pixels);
     j.key("fallback_pixels").value(f.prior.fallback_pixels);
+    j.key("refresh_pixels").value(f.prior.refresh_pixels);
+    j.key("edge_zone_pixels").value(f.prior.edge_zone_pixels);
+    j.key("highlight_pixels").value(f.prior.highlight_pixels);
     j.key("hits").value(f.prior.prior_hits);
     j.key("misses").value(f.prior.prior_misses);
     j.key("mean_narrowed_width_px").value(f.prior.mean_narrowed_width_px);
@@ -670,6 +674,7 @@ int run(int argc, char** argv) {
     r.prior = out.prior_stats;
     r.quality = out.rect_quality;
     r.priors_used = out.priors_used;
+    r.priors_rejected = out.priors_rejected;
     r.priors_reset = out.priors_reset;
     r.reset_reason = out.reset_reason;
     r.preprocess_ms = out.preprocess_ms;
@@ -742,7 +747,9 @@ int run(int argc, char** argv) {
     if (!o.quiet) {
       std::fprintf(stderr, "frame %d: %dx%d density %.1f%% %.1f ms%s%s\n", index, r.size.width,
                    r.size.height, 100.0 * r.match.density(), r.total_ms,
-                   r.priors_used ? " (priors)" : "",
+                   r.priors_used       ? " (priors)"
+                   : r.priors_rejected ? " (priors rejected: scene change, full range)"
+                                       : "",
                    r.priors_reset ? (" reset: " + r.reset_reason).c_str() : "");
     }
   }

@@ -198,15 +198,6 @@ int main(int argc, char** argv) {
     pp.matcher.max_disparity = dmax;
   }
   for (const std::string& o : overrides) {
-    // Keys newer than the parameter loader are set here directly.
-    if (o.rfind("temporal.highlight_gray=", 0) == 0) {
-      pp.temporal.highlight_gray = std::atoi(o.c_str() + o.find('=') + 1);
-      continue;
-    }
-    if (o.rfind("temporal.highlight_margin_px=", 0) == 0) {
-      pp.temporal.highlight_margin_px = std::atoi(o.c_str() + o.find('=') + 1);
-      continue;
-    }
     const std::string e = endo_stereo::applyParamOverride(pp, o);
     if (!e.empty()) {
       std::cerr << e << "\n";

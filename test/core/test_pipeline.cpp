@@ -175,6 +175,33 @@ TEST_F(PipelineTest, PriorsNarrowTheNextFrameAndResetWhenTimeGoesBackOrJumps) {
   EXPECT_FALSE(out.priors_used);
 }
 
+// A scene change (a cut, a jump of the endoscope): the previous frame's priors point at the wrong
+// disparities, the narrowed search finds almost nothing, and the pipeline matches the frame again
+// over the full range instead of outputting what the wrong ranges let through.
+TEST_F(PipelineTest, PriorsFromAnotherSceneAreRejectedAndTheFrameIsMatchedInFull) {
+  const SyntheticScene a = smallScene();
+  SyntheticSceneParams pb;
+  pb.width = 160;
+  pb.height = 120;
+  pb.seed = 77;
+  pb.base_disparity_px = 24.0;  // far outside +-4 px of scene a's 10 px
+  const SyntheticScene b = makeSyntheticScene(pb);
+  const PipelineParams params = passThroughParams();
+  Pipeline pipeline(params);
+  PipelineOutput out;
+  std::string error;
+  ASSERT_TRUE(pipeline.process(monoInput(a, 0.0), out, &error)) << error;
+  ASSERT_TRUE(pipeline.process(monoInput(a, 0.04), out, &error)) << error;
+  ASSERT_TRUE(out.priors_used);
+  ASSERT_TRUE(pipeline.process(monoInput(b, 0.08), out, &error)) << error;
+  EXPECT_TRUE(out.priors_rejected);
+  EXPECT_FALSE(out.priors_used);
+  RobustMatcher matcher(params.matcher, params.filter);
+  MatchResult full;
+  matcher.compute(b.left, b.right, full);
+  EXPECT_TRUE(sameDisparity(out.match.disparity, full.disparity));
+}
+
 TEST_F(PipelineTest, ChangingTheDisparityRangeResetsPriorsAndDisablingThemSearchesFully) {
   const SyntheticScene s = smallScene();
   PipelineParams params = passThroughParams();

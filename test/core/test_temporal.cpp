@@ -240,8 +240,13 @@ TEST(TemporalPrior, EdgeZoneSpansBothSidesOfADepthEdge) {
   EXPECT_EQ(range.hi.at<int16_t>(10, 5), 24);
   EXPECT_EQ(range.lo.at<int16_t>(10, 35), 36);
   EXPECT_EQ(range.hi.at<int16_t>(10, 35), 44);
-  EXPECT_EQ(prior.stats().edge_zone_pixels, 12 * 20);  // columns 14 .. 25
-  // A slanted surface is no edge: 0.2 px per column spans 2.4 px over the zone.
+  // The zone works on 4 x 4 blocks: 6 px becomes 2 blocks, columns 12 .. 27 (6 to 8 px).
+  EXPECT_EQ(prior.stats().edge_zone_pixels, 16 * 20);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 11), 24);
+  EXPECT_EQ(range.hi.at<int16_t>(10, 12), 44);
+  EXPECT_EQ(range.lo.at<int16_t>(10, 27), 16);
+  EXPECT_EQ(range.lo.at<int16_t>(10, 28), 36);
+  // A slanted surface is no edge: 0.2 px per column spans at most 4 px over the zone.
   for (int x = 0; x < 40; ++x) d.col(x).setTo(20.0f + 0.2f * x);
   prior.update(d);
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));

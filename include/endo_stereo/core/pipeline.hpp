@@ -78,7 +78,11 @@ struct PipelineOutput {
   OrganizedCloud cloud;        ///< organized cloud in the left rectified optical frame, metres
   RectifiedGeometry geometry;  ///< of the rectified pair
   RectificationQuality rect_quality;  ///< latest vertical-offset residual of the rectification
-  bool priors_used = false;    ///< this frame searched narrowed ranges
+  bool priors_used = false;    ///< this frame's output comes from narrowed ranges
+  /// The narrowed search found too few matches (TemporalParams::min_prior_hit_share: a scene
+  /// change), so the priors were dropped and the frame matched again over the full range
+  /// (match_ms covers both passes; priors_used is then false).
+  bool priors_rejected = false;
   bool priors_reset = false;   ///< the temporal state was reset before this frame (and why below)
   std::string reset_reason;
   TemporalPriorStats prior_stats;  ///< narrowed / full-range pixels, prior hits and misses

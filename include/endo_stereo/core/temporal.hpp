@@ -6,11 +6,16 @@
  *
  * Bernhardt et al. (2012) use the disparities of one frame pair as priors for the next, so a pixel
  * with a recent valid disparity searches only a narrow range around it. Ours on top of the paper:
- * the narrowed range of a pixel spans the priors of a small neighbourhood (so image motion of a few
- * pixels and depth edges stay inside it); a pixel whose narrowed search keeps failing falls back to
- * the full range; all temporal state is forgotten when time goes back (a looping bag), after a long
- * gap, or when the image size, the disparity range or the calibration changes. Priors never weaken
- * the acceptance criteria: the matcher applies the same three criteria, only the range changes.
+ * - the narrowed range of a pixel spans the priors of a small neighbourhood (image motion of a few
+ *   pixels), and near a depth edge in the priors the span of both sides (a moving instrument);
+ * - a pixel whose narrowed search keeps failing falls back to the full range; when most narrowed
+ *   searches of a frame fail (a cut) all priors are dropped and the frame can be matched again;
+ * - near specular highlights the full range is searched (see highlight_gray);
+ * - all temporal state is forgotten when time goes back (a looping bag), after a long gap, or when
+ *   the image size, the disparity range or the calibration changes.
+ * Priors must not weaken the acceptance criteria: the matcher applies the same criteria, only the
+ * range changes, and where a narrowed range measurably let more errors through (highlights, cuts,
+ * moving edges) the rules above widen it. notes/temporal_results.md has the measurements.
  *
  * Use (what Pipeline does per frame):
  * @code
@@ -57,7 +62,9 @@ struct TemporalParams {
   /// Depth edges move (an instrument sweeping over tissue): a pixel within this many pixels of a
   /// prior discontinuity (priors in that neighbourhood spanning more than 2 * prior_radius_px)
   /// searches the span of both sides, [min - r, max + r] over the neighbourhood, so tissue that an
-  /// instrument uncovers is searched at the tissue's disparity too. In [0, 64]; 0 = off.
+  /// instrument uncovers is searched at the tissue's disparity too. The zone is computed on 4 x 4
+  /// blocks, so it reaches between this and this + 7 px. In [0, 64]; 0 = off (also when <=
+  /// prior_neighbourhood_px).
   int prior_edge_zone_px = 16;
   /// Specular highlights move with the view, and a narrowed search there loses the competitors
   /// that let the criteria reject a highlight matched to itself: pixels within highlight_margin_px
@@ -79,8 +86,9 @@ struct TemporalParams {
   /// on the surgical sequence and costs 1/period of a full search, notes/temporal_results.md).
   int refresh_period_frames = 0;
   /// Scene change: when fewer than this share of the narrowed searches of a frame find a valid
-  /// disparity (normally ~95%), the priors are dropped at once and the next frame searches the
-  /// full range (a cut, a jump of the endoscope). Judged only when at least 5% of the pixels were
+  /// disparity (normally ~95%), the priors are dropped at once (a cut, a jump of the endoscope):
+  /// TemporalTracker::rejectPriors() then asks for the frame to be matched again over the full
+  /// range, or else the next frame searches it. Judged only when at least 5% of the pixels were
   /// narrowed. In [0, 1]; 0 = off.
   double min_prior_hit_share = 0.5;
   /// Forget the temporal state when the stamp moves forward by more than this, s. > 0.
@@ -137,12 +145,13 @@ class TemporalResetDetector {
 /// Counters of the latest frame of a TemporalPrior.
 struct TemporalPriorStats {
   int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
-  int64_t full_range_pixels = 0;  ///< pixels searching the full range (no prior, or fallback)
+  int64_t full_range_pixels = 0;  ///< pixels searching the full range (any of the reasons below,
+                                  ///< or no prior)
   int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
   int64_t refresh_pixels = 0;     ///< of those: in this frame's refresh stripes
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
   int64_t highlight_pixels = 0;   ///< full-range pixels near a highlight (left_gray given)
-  bool scene_change = false;      ///< update() dropped all priors: too few narrowed searches hit
+  bool scene_change = false;      ///< all priors dropped this frame: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
   double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
@@ -157,7 +166,8 @@ struct TemporalPriorStats {
  * prior_neighbourhood_px of p (priors no older than max_prior_age_frames, of pixels that have not
  * failed max_prior_failures times in a row), clamped to the full range. Near a prior depth edge
  * (within prior_edge_zone_px) the span of both sides is searched instead. Pixels with no such
- * prior search the full range, and so do the rows of this frame's refresh stripes.
+ * prior search the full range, and so do pixels near a highlight (when buildRange() gets the left
+ * image) and the rows of this frame's refresh stripes.
  */
 class TemporalPrior {
  public:
