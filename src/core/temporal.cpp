@@ -464,7 +464,8 @@ CoverageStats CoverageTracker::stats() const {
       const uint16_t* lng = longest_.ptr<uint16_t>(y);
       const uint8_t* ever = ever_.ptr<uint8_t>(y);
       for (int x = roi.x; x < roi.x + roi.width; ++x) {
-        n_within += lng[x] < within_frames_;
+        // A pixel never updated was not updated within N frames, however short the sequence.
+        n_within += ever[x] != 0 && lng[x] < within_frames_;
         n_never += ever[x] == 0;
       }
     }

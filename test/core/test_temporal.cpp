@@ -488,6 +488,21 @@ TEST(CoverageTracker, LongestRunOnHandMadeSequence) {
   EXPECT_EQ(img.size(), cv::Size(4, 1));
 }
 
+// A sequence shorter than N: a pixel never updated has a longest run below N, yet it was not
+// updated within N frames and must not count as covered.
+TEST(CoverageTracker, NeverUpdatedPixelsDoNotCountInShortSequences) {
+  CoverageTracker cov(10);
+  for (int f = 0; f < 3; ++f) {
+    cv::Mat d(1, 4, CV_32FC1, cv::Scalar(kNaN));
+    d.at<float>(0, 0) = 1.0f;
+    d.at<float>(0, 1) = 1.0f;
+    cov.update(d);
+  }
+  const CoverageStats s = cov.stats();
+  EXPECT_DOUBLE_EQ(s.overall_share, 0.5);
+  EXPECT_DOUBLE_EQ(s.overall_never, 0.5);
+}
+
 TEST(CoverageTracker, CentralRegionIsTheMiddleHalfByArea) {
   const cv::Rect r = CoverageTracker::centralRegion(cv::Size(960, 540));
   EXPECT_NEAR(double(r.area()) / (960.0 * 540.0), 0.5, 0.005);

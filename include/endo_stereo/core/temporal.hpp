@@ -260,8 +260,8 @@ class TemporalFusion {
 struct CoverageStats {
   int frames = 0;                ///< frames folded in
   int within_frames = 10;        ///< the N of "updated within N frames"
-  double central_share = 0.0;    ///< central-region pixels with longest run < N, [0, 1]
-  double overall_share = 0.0;    ///< all pixels with longest run < N, [0, 1]
+  double central_share = 0.0;    ///< central-region pixels updated at least once, longest run < N
+  double overall_share = 0.0;    ///< all pixels updated at least once with longest run < N
   double central_never = 0.0;    ///< central-region pixels never updated, [0, 1]
   double overall_never = 0.0;    ///< all pixels never updated, [0, 1]
   cv::Rect central_region;       ///< the middle half of the image by area
