@@ -10,7 +10,7 @@
 # same), density (valid disparity pixels).
 #
 # Writes out/bench_ros/ (bag, logs, JSON) and the table to $BENCH_NOTES (default
-# /work/notes/ros_bench.md when /work/notes exists, else out/bench_ros/ros_bench.md).
+# out/bench_ros/ros_bench.md; BENCHMARKS.md section 6 records a run).
 # Environment: BENCH_FRAMES (100), BENCH_WIDTH x BENCH_HEIGHT (960 x 540), BENCH_RATE (1.0 = 25 fps),
 # BENCH_TARGETS ("endo_stereo stereo_image_proc").
 set -uo pipefail
@@ -24,7 +24,7 @@ HEIGHT="${BENCH_HEIGHT:-540}"
 RATE="${BENCH_RATE:-1.0}"
 TARGETS="${BENCH_TARGETS:-endo_stereo stereo_image_proc}"
 if [ -z "${BENCH_NOTES:-}" ]; then
-  if [ -d /work/notes ]; then BENCH_NOTES=/work/notes/ros_bench.md; else BENCH_NOTES="$OUT/ros_bench.md"; fi
+  BENCH_NOTES="$OUT/ros_bench.md"
 fi
 NS=/endoscope
 mkdir -p "$OUT/log"

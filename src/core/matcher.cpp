@@ -30,7 +30,7 @@
 // depth edge is exactly the case where a confident, left-right-consistent match can be the
 // other surface's disparity, and the fattened band around an edge is never wider than the window
 // that produced it, so testing each pixel's own window catches it. Measured on Middlebury in
-// notes/matcher_design.md.
+// docs/matcher_design.md.
 
 #include "endo_stereo/core/matcher.hpp"
 
@@ -1609,7 +1609,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
 
 // ---------------------------------------------------------------------------------------------
 // Our measure against fattening at depth edges (see the top of this file and
-// notes/matcher_design.md). A pixel accepted with a window of width w is rejected when the accepted
+// docs/matcher_design.md). A pixel accepted with a window of width w is rejected when the accepted
 // disparities within (w - 1) / 2 + edge_margin_px of it (judged on the map before this step) go
 // more than edge_disparity_jump_px below its own, or more than edge_disparity_jump_above_px above
 // it: its window straddles a depth edge. Below = the pixel may carry a nearer surface's

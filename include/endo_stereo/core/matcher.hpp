@@ -12,7 +12,7 @@
  * Ours, in the default preset (the paper preset, config/paper.yaml, switches them off): a test
  * against fattening at depth edges (a pixel whose accepting window straddles a disparity jump is
  * rejected, edge_*), a least NCC for the best peak (min_ncc, stronger for narrowed per-pixel
- * ranges), epsilon 1.5 px. Measurements: notes/matcher_design.md / BENCHMARKS.md.
+ * ranges), epsilon 1.5 px. Measurements: docs/matcher_design.md / BENCHMARKS.md.
  *
  * A pixel searches the disparities of its range for which both windows lie inside the images (the
  * range is cut at the borders); pixels whose window leaves the image are not searched.

@@ -15,7 +15,7 @@
  *   the image size, the disparity range or the calibration changes.
  * Priors must not weaken the acceptance criteria: the matcher applies the same criteria, only the
  * range changes, and where a narrowed range measurably let more errors through (highlights, cuts,
- * moving edges) the rules above widen it. notes/temporal_results.md has the measurements.
+ * moving edges) the rules above widen it. docs/temporal_results.md has the measurements.
  *
  * Use (what Pipeline does per frame):
  * @code
@@ -83,7 +83,7 @@ struct TemporalParams {
   /// every refresh_period_frames stripes of kRefreshStripeRows rows does (in turn), so a wrong
   /// prior cannot sustain itself. A full-range search that finds nothing drops the pixel's prior.
   /// In [0, 1000]; 0 = never refresh (the default: with the matcher's guards it bought no accuracy
-  /// on the surgical sequence and costs 1/period of a full search, notes/temporal_results.md).
+  /// on the surgical sequence and costs 1/period of a full search, docs/temporal_results.md).
   int refresh_period_frames = 0;
   /// Scene change: when fewer than this share of the narrowed searches of a frame find a valid
   /// disparity (normally ~95%), the priors are dropped at once (a cut, a jump of the endoscope):
