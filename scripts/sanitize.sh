@@ -15,7 +15,8 @@
 #                              TSAN_FRAMES pairs, default 600). Exit 1 on any ThreadSanitizer report.
 #
 # Environment: JOBS (default 1: the machines are shared), WS_ASAN, WS_TSAN, BUILD_TYPE
-# (default RelWithDebInfo, -O2 -g, so stack traces have lines).
+# (default RelWithDebInfo, -O2 -g, so stack traces have lines), ASAN_SKIP_BUILD=1 (rerun the tests
+# of an existing ASan build; make's test targets still rebuild what changed).
 set -uo pipefail
 ES_ROOT="$(cd "$(dirname "$0")/.." && pwd)"
 mode="${1:-asan}"
@@ -43,7 +44,9 @@ case "$mode" in
     # halt_on_error makes a UBSan report fail the test that triggered it.
     export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1"
     echo "[asan] building in $WS ($BUILD_TYPE, jobs $JOBS)"
-    if ! "$ES_ROOT/scripts/build.sh" > "$WS.build.log" 2>&1 || \
+    if [ "${ASAN_SKIP_BUILD:-0}" = 1 ]; then
+      echo "[asan] ASAN_SKIP_BUILD=1: using the existing build"
+    elif ! "$ES_ROOT/scripts/build.sh" > "$WS.build.log" 2>&1 || \
        ! "$ES_ROOT/scripts/build.sh" tests >> "$WS.build.log" 2>&1; then
       tail -n 30 "$WS.build.log"
       echo "[asan] build failed (log: $WS.build.log)"
@@ -60,7 +63,8 @@ case "$mode" in
       make -C "$WS/build" -j1 run_tests_endo_stereo_gtest > "$logs/gtest_run.log" 2>&1
     echo "[asan] gtests done at $(elapsed) s"
     # 2) rostests: the nodelet manager and rostest are not instrumented; preload the runtime.
-    if make -C "$WS/build" help 2>/dev/null | grep -q 'run_tests_endo_stereo_rostest$'; then
+    targets="$(make -C "$WS/build" help 2>/dev/null)"  # not piped into grep -q: pipefail
+    if grep -q 'run_tests_endo_stereo_rostest$' <<< "$targets"; then
       LD_PRELOAD="$(gcc -print-file-name=libasan.so)" \
       ASAN_OPTIONS="detect_leaks=0:verify_asan_link_order=0:log_path=$logs/rostest" \
         make -C "$WS/build" -j1 run_tests_endo_stereo_rostest > "$logs/rostest_run.log" 2>&1
