@@ -517,6 +517,11 @@ def inventory_cases(target):
             stamp = rospy.Time.from_sec(t)
             lc = make_info(stamp, "stereo_optical", w, h, k_override=k)
             rc = make_info(stamp, rframe, w, h, tx=tx, k_override=k)
+            # camera_info first, then the pair with it again: a camera whose calibration is bad
+            # from now on (endo_stereo takes the latest camera_info of each side, not the one
+            # with the image's stamp; see RELIABILITY.md).
+            rig.publish(None, None, lc, rc)
+            time.sleep(0.3)
             pair_with(rig, t, linfo=lc, rinfo=rc, rframe=rframe)
             return t + 1.0
         return run
