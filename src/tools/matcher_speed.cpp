@@ -156,6 +156,28 @@ int main(int argc, char** argv) {
       "ours +-4 px %.1f ms\n",
       median(c_sgbm), median(c_ours), median(c_ours) / median(c_sgbm), median(c_prior));
   std::printf("  peak RSS %.1f MB (one matcher, both modes)\n", peakRssMb());
+  // Where the pixels end up (last frame of each mode): accepted per window size, rejections.
+  auto outcome = [&](const char* label, const es::MatchStats& st) {
+    std::printf("  %s: accepted per window", label);
+    for (int k = 0; k < 16 && mp.window_min_px + k * mp.window_step_px <= mp.window_max_px; ++k) {
+      std::printf(" w%d=%lld", mp.window_min_px + k * mp.window_step_px,
+                  static_cast<long long>(st.accepted_per_window[k]));
+    }
+    std::printf("; rejected structure %lld gap %lld lr %lld edge %lld nopeak %lld\n",
+                static_cast<long long>(st.rejected[es::kCodeRejectStructure]),
+                static_cast<long long>(st.rejected[es::kCodeRejectPeakGap]),
+                static_cast<long long>(st.rejected[es::kCodeRejectLeftRight]),
+                static_cast<long long>(st.rejected[es::kCodeRejectEdge]),
+                static_cast<long long>(st.rejected[es::kCodeNoPeak]));
+  };
+  if (run_full) {
+    matcher.compute(scene.left, scene.right, res);
+    outcome("full", res.stats);
+  }
+  if (run_prior) {
+    matcher.compute(scene.left, scene.right, res, &range);
+    outcome("+-4 px", res.stats);
+  }
   // Identical output whatever the thread count (fixed row stripes, exact sums).
   {
     es::MatcherParams p1 = mp, p2 = mp;

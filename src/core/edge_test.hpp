@@ -1,0 +1,19 @@
+// Private to the core: the depth-edge (anti-fattening) test of the robust matcher.
+#pragma once
+
+#include <opencv2/core.hpp>
+
+#include "endo_stereo/core/matcher.hpp"
+
+namespace endo_stereo {
+
+/// Reject (code kCodeRejectEdge, disparity NaN, confidence 0) every pixel accepted with a window
+/// of width w whose window, widened by mp.edge_margin_px, holds accepted disparities more than
+/// mp.edge_disparity_jump_px below its own or more than mp.edge_disparity_jump_above_px above it
+/// (judged on the map before the step: order-independent). @p window_idx holds each accepted
+/// pixel's window index; @p num_levels the number of window sizes; the remaining Mats are scratch.
+void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
+                          MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
+                          cv::Mat& hi, cv::Mat& reject);
+
+}  // namespace endo_stereo

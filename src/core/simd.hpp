@@ -1,0 +1,44 @@
+// Private to the core: 8-lane float helpers on GCC vector types and the dispatch attribute of the
+// hot kernels (AVX2 and baseline clones chosen at load time), shared by matcher.cpp and
+// edge_test.cpp. Not installed, not part of the API.
+#pragma once
+
+#include <cstring>
+
+namespace endo_stereo {
+namespace simd {
+
+// --- Vectorisable kernels. Built for AVX2 and for the baseline, chosen at load time, so the
+// library runs on any x86-64 and uses AVX2 where the CPU has it. ---------------------------------
+#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+    !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
+#define ES_KERNEL __attribute__((target_clones("avx2", "default")))
+#else
+#define ES_KERNEL
+#endif
+#define ES_INLINE __attribute__((always_inline)) inline
+
+// The vector helpers are always inlined into the AVX2 or baseline clone; the ABI note GCC gives
+// for 32-byte vector values in baseline code does not apply.
+#pragma GCC diagnostic ignored "-Wpsabi"
+typedef float V8f __attribute__((vector_size(32)));
+typedef int V8i __attribute__((vector_size(32)));
+
+ES_INLINE V8f load8(const float* p) {
+  V8f v;
+  std::memcpy(&v, p, sizeof(v));
+  return v;
+}
+ES_INLINE void store8(float* p, V8f v) { std::memcpy(p, &v, sizeof(v)); }
+ES_INLINE V8f max8(V8f a, V8f b) { return a > b ? a : b; }
+ES_INLINE V8f splat8(float f) { return V8f{f, f, f, f, f, f, f, f}; }
+// Whether any lane of a comparison mask is set.
+ES_INLINE bool anyLane(V8i m) {
+  typedef long long V4l __attribute__((vector_size(32)));
+  const V4l t = reinterpret_cast<V4l>(m);
+  return ((t[0] | t[1]) | (t[2] | t[3])) != 0;
+}
+
+
+}  // namespace simd
+}  // namespace endo_stereo
