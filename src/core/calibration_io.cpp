@@ -3,10 +3,12 @@
 #include <yaml-cpp/yaml.h>
 
 #include <cmath>
+#include <cstdint>
 #include <fstream>
 #include <iomanip>
 #include <opencv2/core/persistence.hpp>
 #include <sstream>
+#include <string>
 #include <vector>
 
 namespace endo_stereo {
@@ -80,9 +82,58 @@ bool finish(StereoCalibration& out, const std::string& where, std::string* error
   return true;
 }
 
-bool readCvMat(const cv::FileStorage& fs, const char* key, cv::Mat* m) {
+/// Largest row or column count a matrix of a calibration file may declare (the largest one read
+/// here is 3x4; distortion vectors have at most 14 coefficients).
+constexpr int kMaxCalibMatrixSide = 64;
+
+/// Checks the shape a FileStorage matrix node declares against the values it holds, before
+/// cv::read() allocates it: OpenCV allocates rows x cols x channels from the header first and
+/// compares with the data only afterwards, so a corrupted header ("rows: 2147483647") made the
+/// loader ask for 16 GB (found by fuzz_opencv_stereo). @return "" or what is wrong.
+std::string checkMatrixNode(const cv::FileNode& n) {
+  if (!n.isMap()) return "";  // a plain sequence or scalar: cv::read() makes an empty matrix
+  const cv::FileNode data = n["data"];
+  const int64_t values = data.empty() ? 0 : static_cast<int64_t>(data.size());
+  int64_t declared = 1;
+  auto side = [&](const cv::FileNode& v, const char* what) -> std::string {
+    if (!v.isInt() && !v.isReal()) return std::string(what) + ": not a number";
+    const double x = static_cast<double>(v);
+    if (!(x >= 0 && x <= kMaxCalibMatrixSide) || x != std::floor(x)) {
+      std::ostringstream os;
+      os.precision(17);
+      os << what << " = " << x << " is not an integer in 0.." << kMaxCalibMatrixSide;
+      return os.str();
+    }
+    declared *= static_cast<int64_t>(x);
+    return "";
+  };
+  const cv::FileNode sizes = n["sizes"];
+  std::string why;
+  if (!sizes.empty()) {
+    if (!sizes.isSeq() || sizes.size() > 4) return "sizes: not a list of at most 4 integers";
+    for (int i = 0; i < static_cast<int>(sizes.size()) && why.empty(); ++i) {
+      why = side(sizes[i], "sizes");
+    }
+  } else {
+    why = side(n["rows"], "rows");
+    if (why.empty()) why = side(n["cols"], "cols");
+  }
+  if (!why.empty()) return why;
+  if (declared > values) {
+    return "declares " + std::to_string(declared) + " elements but holds " +
+           std::to_string(values) + " values";
+  }
+  return "";
+}
+
+/// Reads matrix @p key as CV_64F. @return false when it is missing or empty, or (with @p why set)
+/// when its declared shape is impossible.
+bool readCvMat(const cv::FileStorage& fs, const char* key, cv::Mat* m, std::string* why) {
+  why->clear();
   cv::FileNode n = fs[key];
   if (n.empty()) return false;
+  *why = checkMatrixNode(n);
+  if (!why->empty()) return false;
   n >> *m;
   if (m->empty()) return false;
   m->convertTo(*m, CV_64F);
@@ -244,14 +295,23 @@ bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::
   StereoCalibration s;
   cv::Mat m1, d1, m2, d2, r, t, r1, r2, p1, p2;
   try {
-    if (!readCvMat(fs, "M1", &m1)) return fail(error, path + ": M1: missing");
-    if (!readCvMat(fs, "M2", &m2)) return fail(error, path + ": M2: missing");
-    if (!readCvMat(fs, "R", &r)) return fail(error, path + ": R: missing");
-    if (!readCvMat(fs, "T", &t)) return fail(error, path + ": T: missing");
-    readCvMat(fs, "D1", &d1);
-    readCvMat(fs, "D2", &d2);
-    const bool has_r1 = readCvMat(fs, "R1", &r1), has_r2 = readCvMat(fs, "R2", &r2);
-    const bool has_p1 = readCvMat(fs, "P1", &p1), has_p2 = readCvMat(fs, "P2", &p2);
+    std::string why;
+    // A matrix with an impossible shape is an error even where the key is optional.
+    auto read = [&](const char* key, cv::Mat* m, bool required, bool* found) {
+      const bool ok = readCvMat(fs, key, m, &why);
+      if (found) *found = ok;
+      if (!why.empty()) return fail(error, path + ": " + key + ": " + why);
+      if (!ok && required) return fail(error, path + ": " + key + ": missing");
+      return true;
+    };
+    bool has_r1 = false, has_r2 = false, has_p1 = false, has_p2 = false;
+    if (!read("M1", &m1, true, nullptr) || !read("M2", &m2, true, nullptr) ||
+        !read("R", &r, true, nullptr) || !read("T", &t, true, nullptr) ||
+        !read("D1", &d1, false, nullptr) || !read("D2", &d2, false, nullptr) ||
+        !read("R1", &r1, false, &has_r1) || !read("R2", &r2, false, &has_r2) ||
+        !read("P1", &p1, false, &has_p1) || !read("P2", &p2, false, &has_p2)) {
+      return false;
+    }
     if (!matToMatx33(m1, &s.left.K))
       return fail(error, path + ": M1: must be 3x3, got " + sizeString(m1));
     if (!matToMatx33(m2, &s.right.K))
@@ -306,6 +366,8 @@ bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::
           w = int(n[0]);
           h = int(n[1]);
         } else {
+          const std::string bad = checkMatrixNode(n);
+          if (!bad.empty()) return fail(error, path + ": " + key + ": " + bad);
           cv::Mat sz;
           n >> sz;
           if (sz.total() == 2) {

@@ -60,7 +60,9 @@ ES_KERNEL void windowMinMax(const cv::Mat& lo_src, const cv::Mat& hi_src, int x0
 
 }  // namespace
 
-void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
+void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& /*left*/,
+                          const cv::Mat& /*right*/,
+                          int num_levels, const cv::Mat& window_idx,
                           MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
                           cv::Mat& hi, cv::Mat& reject) {
   const int H = out.disparity.rows, W = out.disparity.cols;

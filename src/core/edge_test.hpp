@@ -11,8 +11,10 @@ namespace endo_stereo {
 /// of width w whose window, widened by mp.edge_margin_px, holds accepted disparities more than
 /// mp.edge_disparity_jump_px below its own or more than mp.edge_disparity_jump_above_px above it
 /// (judged on the map before the step: order-independent). @p window_idx holds each accepted
-/// pixel's window index; @p num_levels the number of window sizes; the remaining Mats are scratch.
-void rejectEdgeStraddlers(const MatcherParams& mp, int num_levels, const cv::Mat& window_idx,
+/// pixel's window index; @p left, @p right the matched 8-bit images (CV_8UC1, unused by the
+/// test as it stands, there for tests that look at the images); @p num_levels the number of window sizes; the remaining Mats are scratch.
+void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& right,
+                          int num_levels, const cv::Mat& window_idx,
                           MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
                           cv::Mat& hi, cv::Mat& reject);
 

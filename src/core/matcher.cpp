@@ -1668,8 +1668,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
         num_stripes);
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
-    rejectEdgeStraddlers(mp, num_levels, im.window_idx, out, im.tmp1, im.tmp2, im.tmp3, im.tmp4,
-                         im.tmp5);
+    rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.tmp1, im.tmp2,
+                         im.tmp3, im.tmp4, im.tmp5);
   }
   const auto t1 = std::chrono::steady_clock::now();
 
