@@ -40,6 +40,8 @@
 #endif
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -58,6 +60,7 @@ namespace endo_stereo {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
+static const bool kLanes = std::getenv("ES_OLD_DENSE") == nullptr;  // TEMP: A/B switch
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
 // Column blocks used to find, per disparity, the column intervals worth computing (dense rows).
@@ -111,8 +114,25 @@ struct Scratch {
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
   std::vector<int> req_stamp, req_k0, req_k1;
+  // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
+  // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
+  // pixel q is then the sum of w whole columns (q - r .. q + r), not a diagonal through 64 + w
+  // left columns. Same bookkeeping as the left columns.
+  std::vector<float> colsum_r;
+  std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
   std::vector<double> dbl_a, dbl_b;
+  // Dense engine ("lanes over disparity"): vertical window sums of every column for the
+  // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
+  std::vector<float> vl;
+  std::vector<int> vl_g0, vl_g1;  // per column: 8-lane groups held (g0 > g1: none)
+  std::vector<int> span_lo, span_hi;
+  int vl_row = -10;               // row the sums hold (all columns), -10 = none
+  int span_stripe = -1;           // stripe whose per-column groups vl_g0/vl_g1 were set for
+  // Reversed, padded row arrays (index rpad + W - 1 - q for right column q, so that q = x - d for
+  // increasing d is contiguous): right statistics and the right-to-left tracker.
+  int rpad = 0;
+  std::vector<float> srr, irr, rbv_rev, rbd_rev, hrow, lprof, lmbuf;
   // Row state.
   RowMaps maps;
   std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
@@ -164,7 +184,7 @@ struct Scratch {
     upto.assign(nd, 0);
     block_a.assign(nb, 0);
     block_b.assign(nb, 0);
-    // + 8: rlAccumulate reads whole 8-lane groups past the last disparity of a column.
+    // + 8: padding for whole 8-lane groups past the last disparity of a column.
     colsum.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
     col_row.assign(w, -10);
     col_k0.assign(w, 0);
@@ -175,6 +195,26 @@ struct Scratch {
     req_k0.assign(w, 0);
     req_k1.assign(w, -1);
     hot.reserve(w);
+    colsum_r.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
+    colr_row.assign(w, -10);
+    colr_k0.assign(w, 0);
+    colr_k1.assign(w, -1);
+    colr_used.assign(w, -10);
+    colr_done.assign(w, -1);
+    hot_r.reserve(w);
+    vl.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
+    // Reads of the mirrored arrays stay within [rpad - 7, rpad + W + 6] (effective ranges lie
+    // inside the image, groups round them by at most 7).
+    rpad = 8;
+    for (auto* vec : {&srr, &irr}) vec->assign(rpad + w + 16, 0.f);
+    for (auto* vec : {&rbv_rev, &rbd_rev}) vec->assign(8 * static_cast<size_t>(rpad + w + 16), 0.f);
+    vl_g0.assign(w, 0);
+    vl_g1.assign(w, -1);
+    span_lo.assign(w, 0);
+    span_hi.assign(w, 0);
+    hrow.assign(dpad + 16, 0.f);
+    lprof.assign(dpad + 24, 0.f);
+    lmbuf.assign(dpad + 24, 0.f);
     hvec.assign(dpad + 8, 0.f);
     dbl_a.assign(w + 64, 0.0);
     dbl_b.assign(w + 64, 0.0);
@@ -189,6 +229,10 @@ struct Scratch {
     }
     std::fill(col_row.begin(), col_row.end(), -10);
     hot.clear();
+    std::fill(colr_row.begin(), colr_row.end(), -10);
+    hot_r.clear();
+    vl_row = -10;
+    span_stripe = -1;
     uniform_row = -10;
   }
 };
@@ -509,6 +553,8 @@ struct FrameData {
   cv::Mat lf, rf;        // CV_32F value - 128
   cv::Mat rf_rev;        // CV_32F rf mirrored left-right, padded (sparse engine)
   int rev_pad = 0;       // columns of padding on the left of rf_rev
+  cv::Mat lf_pad;        // CV_32F lf with zero columns around it (right-indexed column sums)
+  int l_pad = 0;         // columns of padding on the left of lf_pad
   cv::Mat int_l, int_r;  // CV_32S integral images of the 8-bit views
   cv::Mat sq_l, sq_r;    // CV_64F integral images of their squares
   cv::Mat lap_l, lap_r;  // CV_32F 3x3 Laplacian on 0..255
@@ -522,6 +568,8 @@ struct RobustMatcher::Impl : FrameData {
   cv::Mat state;       // CV_8U: 0 = undecided/failed so far, 1 = accepted
   cv::Mat window_idx;  // CV_8U window index that accepted
   cv::Mat tmp1, tmp2, tmp3, tmp4, tmp5, code_before;
+  std::vector<std::vector<int>> open_rows;
+  std::vector<int> n_req_rows;
 
   std::mutex pool_mutex;
   std::vector<std::unique_ptr<Scratch>> pool;
@@ -571,6 +619,10 @@ struct LevelContext {
   int dmin, dmax;
   cv::Mat* state;  // 1 = accepted earlier
   cv::Mat* window_idx;
+  // Per row: the columns still open (requested range, not accepted), sorted; built at the first
+  // window, filtered at each later one, so the larger windows never scan whole rows.
+  std::vector<std::vector<int>>* open_rows;
+  std::vector<int>* n_req_rows;  // per row: pixels with a requested range (first window)
   MatchResult* out;
 };
 
@@ -1145,6 +1197,76 @@ void updateHotColumns(const LevelContext& c, Scratch& s, int y) {
              c.im->rf_rev.ptr<float>(y - r - 1), s.colsum.data());
 }
 
+// Right-indexed column sums (see Scratch::colsum_r): the same three ways to make a column valid
+// (kept, one row in and one out, afresh), the same hot-column carrying. R(y', q) is the scalar,
+// L(y', q + d) for increasing d the contiguous run (lf_pad).
+ES_KERNEL void hotRunningR(int count, const int* __restrict cols, int l_pad, int dmin, int dp,
+                           const int* __restrict k0, const int* __restrict k1,
+                           const float* __restrict r_in, const float* __restrict l_in,
+                           const float* __restrict r_out, const float* __restrict l_out,
+                           float* __restrict colsum) {
+  for (int i = 0; i < count; ++i) {
+    const int q = cols[i];
+    const int a = k0[q], n = k1[q] - a + 1;
+    float* __restrict cs = colsum + static_cast<size_t>(q) * dp + a;
+    const int base = l_pad + q + dmin + a;
+    const float ri = r_in[q], ro = r_out[q];
+    const float* __restrict li = l_in + base;
+    const float* __restrict lo = l_out + base;
+    for (int k = 0; k < n; ++k) cs[k] += ri * li[k] - ro * lo[k];
+  }
+}
+
+void updateHotColumnsR(const LevelContext& c, Scratch& s, int y) {
+  const int keep = std::max(2, c.w / 4);
+  size_t out = 0;
+  for (size_t i = 0; i < s.hot_r.size(); ++i) {
+    const int q = s.hot_r[i];
+    if (s.colr_row[q] != y - 1 || y - s.colr_used[q] > keep) continue;
+    s.colr_row[q] = y;
+    s.hot_r[out++] = q;
+  }
+  s.hot_r.resize(out);
+  if (out == 0) return;
+  const int r = c.r;
+  hotRunningR(static_cast<int>(out), s.hot_r.data(), c.im->l_pad, c.dmin, s.dpad,
+              s.colr_k0.data(), s.colr_k1.data(), c.im->rf.ptr<float>(y + r),
+              c.im->lf_pad.ptr<float>(y + r), c.im->rf.ptr<float>(y - r - 1),
+              c.im->lf_pad.ptr<float>(y - r - 1), s.colsum_r.data());
+}
+
+/// Make right column q's sums valid for row y on disparity indices [k0, k1] (whole 8-lane groups).
+inline void ensureColumnR(const LevelContext& c, Scratch& s, int q, int y, int k0, int k1) {
+  s.colr_used[q] = y;
+  const bool covers = s.colr_k0[q] <= k0 && k1 <= s.colr_k1[q];
+  if (s.colr_row[q] == y && covers) return;
+  const int r = c.r;
+  const cv::Mat& lp = c.im->lf_pad;
+  const cv::Mat& rf = c.im->rf;
+  if (s.colr_row[q] == y - 1 && covers) {
+    const int a = s.colr_k0[q], n = s.colr_k1[q] - a + 1;
+    const int base = c.im->l_pad + q + c.dmin + a;
+    colRunning(n, s.colsum_r.data() + static_cast<size_t>(q) * s.dpad + a,
+               rf.ptr<float>(y + r)[q], lp.ptr<float>(y + r) + base, rf.ptr<float>(y - r - 1)[q],
+               lp.ptr<float>(y - r - 1) + base);
+    s.colr_row[q] = y;
+    return;
+  }
+  if (s.colr_row[q] == y || s.colr_row[q] == y - 1) {
+    k0 = std::min(k0, s.colr_k0[q]);
+    k1 = std::max(k1, s.colr_k1[q]);
+  }
+  const int n = k1 - k0 + 1;
+  float* cs = s.colsum_r.data() + static_cast<size_t>(q) * s.dpad + k0;
+  const int base = c.im->l_pad + q + c.dmin + k0;
+  colSet(n, cs, rf.ptr<float>(y - r)[q], lp.ptr<float>(y - r) + base);
+  for (int yy = y - r + 1; yy <= y + r; ++yy) colAdd(n, cs, rf.ptr<float>(yy)[q], lp.ptr<float>(yy) + base);
+  s.colr_k0[q] = k0;
+  s.colr_k1[q] = k1;
+  if (s.colr_row[q] < y - 1) s.hot_r.push_back(q);
+  s.colr_row[q] = y;
+}
+
 /// S(x, d) for d = lo .. lo + n - 1 of one left pixel (mean_l, inv_l) against the mirrored right
 /// statistics (index i = d - lo). The same expression as nccValue.
 ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float inv_l,
@@ -1210,6 +1332,304 @@ ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* b
   }
 }
 
+// ---------------------------------------------------------------------------------------------
+// Dense engine, lanes over disparity. For each column x the vertical window sums of
+// L(x, y') R(x - d, y') are held for all the disparities it feeds, contiguous in d (the right
+// view is read mirrored), and carried from row to row by one row in and one row out. A pixel's
+// window sums are then w columns added lane by lane (or, with a full search, slid along the row),
+// its profile S(x, d) is formed 8 disparities at a time, analysed by scanProfile (the same
+// rules as the sparse engine), and offered to the right-to-left tracker of every right pixel
+// x - d, held mirrored so that it too is contiguous in d. Pixels are visited in increasing x, so
+// each right pixel sees its disparities in increasing order: strict > keeps the smallest d.
+// ---------------------------------------------------------------------------------------------
+
+/// Per-column groups for a stripe with per-pixel ranges: the union of the requested ranges of the
+/// stripe's pixels whose windows contain the column (a superset of what the column feeds).
+void stripeSpans(const LevelContext& c, Scratch& s, int stripe) {
+  const int W = c.width, r = c.r;
+  const int y0 = std::max(r, stripe * kStripeRows);
+  const int y1 = std::min(c.height - r, (stripe + 1) * kStripeRows);
+  std::vector<int>& lo = s.span_lo;  // per column: min lo / max hi over the stripe's rows
+  std::vector<int>& hi = s.span_hi;
+  std::fill(lo.begin(), lo.begin() + W, kEmptyLo);
+  std::fill(hi.begin(), hi.begin() + W, kEmptyHi);
+  for (int y = y0; y < y1; ++y) {
+    const int* rl = c.im->range_lo.ptr<int>(y);
+    const int* rh = c.im->range_hi.ptr<int>(y);
+    for (int x = 0; x < W; ++x) {
+      if (rl[x] > rh[x]) continue;
+      lo[x] = std::min(lo[x], rl[x]);
+      hi[x] = std::max(hi[x], rh[x]);
+    }
+  }
+  for (int x = 0; x < W; ++x) {
+    int a = kEmptyLo, b = kEmptyHi;
+    for (int xx = std::max(0, x - r); xx <= std::min(W - 1, x + r); ++xx) {
+      a = std::min(a, lo[xx]);
+      b = std::max(b, hi[xx]);
+    }
+    if (a > b) {
+      s.vl_g0[x] = 0;
+      s.vl_g1[x] = -1;
+    } else {
+      s.vl_g0[x] = (a - c.dmin) / 8;
+      s.vl_g1[x] = (b - c.dmin) / 8;
+    }
+  }
+  s.span_stripe = stripe;
+}
+
+/// Inputs of the two passes of a dense row (pointers into the scratch and the frame).
+struct LaneRowArgs {
+  int width, r, w, dp, dmin, rev_pad, rp, rb_stride;
+  bool running, slide;
+  const int* g0;  // per column: groups held
+  const int* g1;
+  float* vl;
+  const float* l_in;  // rows y + r and y - r - 1 of L, and of the mirrored R
+  const float* l_out;
+  const float* r_in;
+  const float* r_out;
+  const float* const* l_rows;  // the w rows of the window (afresh)
+  const float* const* r_rows;
+  const int* elo;  // effective ranges (empty: lo > hi)
+  const int* ehi;
+  const float* act;
+  const float* mean_l;
+  const float* inv_l;
+  const float* srr;  // mirrored right statistics, trackers
+  const float* irr;
+  float* rbv;
+  float* rbd;
+  float* h;     // dp + 16
+  float* prof;  // dp + 24, index k at prof[k] (prof[-1] valid)
+  float *best, *best_d, *best_l, *best_r, *second;
+};
+
+/// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
+ES_KERNEL void lanePass1(const LaneRowArgs& a) {
+  const int W = a.width, dp = a.dp;
+  for (int x = 0; x < W; ++x) {
+    const int g0 = a.g0[x], g1 = a.g1[x];
+    if (g0 > g1) continue;
+    const int k0 = 8 * g0, n = 8 * (g1 - g0 + 1);
+    // rf_rev(y', rev_pad + W - 1 - x') = rf(y', x'): R(y', x - d_k) = rf_rev(y', base + k).
+    const int base = a.rev_pad + W - 1 - x + a.dmin + k0;
+    float* __restrict v = a.vl + static_cast<size_t>(x) * dp + k0;
+    if (a.running) {
+      const V8f li = splat8(a.l_in[x]), lo = splat8(a.l_out[x]);
+      const float* __restrict ri = a.r_in + base;
+      const float* __restrict ro = a.r_out + base;
+      for (int k = 0; k < n; k += 8) {
+        store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
+      }
+    } else {
+      const V8f l0 = splat8(a.l_rows[0][x]);
+      for (int k = 0; k < n; k += 8) store8(v + k, l0 * load8(a.r_rows[0] + base + k));
+      for (int j = 1; j < a.w; ++j) {
+        const V8f lj = splat8(a.l_rows[j][x]);
+        const float* __restrict rr = a.r_rows[j] + base;
+        for (int k = 0; k < n; k += 8) store8(v + k, load8(v + k) + lj * load8(rr + k));
+      }
+    }
+  }
+}
+
+/// Pass 2: profiles, peak analysis of the active pixels, right-to-left offers. Peaks follow the
+/// rules of scanProfile exactly (first index of the highest interior maximum; the highest other
+/// interior maximum and rising range ends compete).
+ES_KERNEL void lanePass2(const LaneRowArgs& a) {
+  const int W = a.width, r = a.r, dp = a.dp, ng = dp / 8;
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8f lane_f = {0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f};
+  const V8f eight_f = splat8(8.f);
+  const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
+  const V8f vninf = splat8(kNegInf);
+  float* __restrict h = a.h;
+  float* __restrict prof = a.prof;
+  if (a.slide) {
+    for (int g = 0; g < ng; ++g) {
+      V8f acc = load8(a.vl + 8 * g);
+      for (int x = 1; x <= 2 * r; ++x) acc += load8(a.vl + static_cast<size_t>(x) * dp + 8 * g);
+      store8(h + 8 * g, acc);
+    }
+  }
+  for (int x = r; x <= W - 1 - r; ++x) {
+    if (a.slide && x > r) {
+      const float* __restrict in = a.vl + static_cast<size_t>(x + r) * dp;
+      const float* __restrict out = a.vl + static_cast<size_t>(x - r - 1) * dp;
+      for (int k = 0; k < dp; k += 8) store8(h + k, load8(h + k) + (load8(in + k) - load8(out + k)));
+    }
+    const int lo = a.elo[x], hi = a.ehi[x];
+    if (lo > hi) continue;
+    const int klo = lo - a.dmin, khi = hi - a.dmin;
+    const int g0 = klo / 8, g1 = khi / 8;
+    if (!a.slide) {
+      for (int g = g0; g <= g1; ++g) {
+        const float* col = a.vl + static_cast<size_t>(x - r) * dp + 8 * g;
+        V8f acc = load8(col);
+        for (int j = 1; j < a.w; ++j) acc += load8(col + static_cast<size_t>(j) * dp);
+        store8(h + 8 * g, acc);
+      }
+    }
+    // Mirrored index of right column x - d_k: m + k. The trackers come in 8 copies, one per
+    // x mod 8: consecutive pixels address them one lane apart, and a load overlapping the
+    // previous pixel's stores by all but one lane would stall (no store forwarding); within a
+    // copy the offsets differ by whole vectors. The copies are merged after the row.
+    const int m = a.rp + W - 1 - x + a.dmin;
+    float* __restrict rbv = a.rbv + static_cast<size_t>(x & 7) * a.rb_stride;
+    float* __restrict rbd = a.rbd + static_cast<size_t>(x & 7) * a.rb_stride;
+    const V8f ml = splat8(a.mean_l[x]), il = splat8(a.inv_l[x]);
+    const V8i vklo = V8i{klo, klo, klo, klo, klo, klo, klo, klo};
+    const V8i vkhi = V8i{khi, khi, khi, khi, khi, khi, khi, khi};
+    const float dk0 = static_cast<float>(a.dmin + 8 * g0);
+    V8f dv = lane_f + V8f{dk0, dk0, dk0, dk0, dk0, dk0, dk0, dk0};
+    V8i kk = lane + V8i{8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0};
+    for (int g = g0; g <= g1; ++g, dv += eight_f, kk += eight_i) {
+      const int k = 8 * g;
+      const V8f sv = (load8(h + k) - ml * load8(a.srr + m + k)) * il * load8(a.irr + m + k);
+      store8(prof + k, sv);
+      const V8i inr = (kk >= vklo) & (kk <= vkhi);
+      const V8f rv = load8(rbv + m + k);
+      const V8i up = inr & (sv > rv);
+      store8(rbv + m + k, up ? sv : rv);
+      store8(rbd + m + k, up ? dv : load8(rbd + m + k));
+    }
+    if (!(a.act[x] > 0.f)) continue;
+    // Interior local maxima (klo < k < khi), tracked per lane in increasing k: the lane's best
+    // (first of equal values: strict >), its index, and the best of the lane's other maxima.
+    V8f bv = vninf, sv = vninf;
+    V8i bk = V8i{0, 0, 0, 0, 0, 0, 0, 0};
+    kk = lane + V8i{8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0};
+    for (int g = g0; g <= g1; ++g, kk += eight_i) {
+      const int k = 8 * g;
+      const V8f v = load8(prof + k);
+      const V8i mx =
+          (kk > vklo) & (kk < vkhi) & (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
+      const V8f mv = mx ? v : vninf;
+      const V8i gt = mv > bv;
+      sv = gt ? bv : max8(sv, mv);
+      bk = gt ? kk : bk;
+      bv = gt ? mv : bv;
+    }
+    // The highest maximum, at its smallest index; every other maximum competes for second.
+    float b = bv[0];
+    int lb = 0;
+    for (int i = 1; i < 8; ++i) {
+      if (bv[i] > b || (bv[i] == b && bk[i] < bk[lb])) {
+        b = bv[i];
+        lb = i;
+      }
+    }
+    float sec = kNegInf;
+    if (b != kNegInf) {
+      for (int i = 0; i < 8; ++i) sec = std::max(sec, i == lb ? sv[i] : bv[i]);
+      const int bi = bk[lb];
+      a.best_d[x] = static_cast<float>(a.dmin + bi);
+      a.best_l[x] = prof[bi - 1];
+      a.best_r[x] = prof[bi + 1];
+    }
+    if (prof[klo] > prof[klo + 1]) sec = std::max(sec, prof[klo]);
+    if (prof[khi] > prof[khi - 1]) sec = std::max(sec, prof[khi]);
+    a.best[x] = b;
+    a.second[x] = sec;
+  }
+}
+
+/// Merge the 8 tracker copies into the first: the highest value, ties to the smallest d (the
+/// order-free form of "strict >, disparities in increasing order").
+ES_KERNEL void laneMergeTrackers(float* __restrict rbv, float* __restrict rbd, int stride, int n) {
+  for (int c = 1; c < 8; ++c) {
+    const float* __restrict v = rbv + static_cast<size_t>(c) * stride;
+    const float* __restrict d = rbd + static_cast<size_t>(c) * stride;
+    for (int i = 0; i < n; ++i) {
+      const bool up = v[i] > rbv[i] || (v[i] == rbv[i] && d[i] < rbd[i]);
+      rbv[i] = up ? v[i] : rbv[i];
+      rbd[i] = up ? d[i] : rbd[i];
+    }
+  }
+}
+
+/// One dense row: every pixel with an effective range gets its profile (active pixels also
+/// their peak analysis) and offers it to the right-to-left trackers; s.rb_d receives the
+/// right-to-left best disparity of every right pixel.
+void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
+  const int W = c.width, r = c.r, w = c.w;
+  const int dp = s.dpad, ng = dp / 8;
+  const int stripe = y / kStripeRows;
+  if (s.span_stripe != stripe) {
+    if (c.uniform_ranges) {
+      std::fill(s.vl_g0.begin(), s.vl_g0.end(), 0);
+      std::fill(s.vl_g1.begin(), s.vl_g1.end(), ng - 1);
+      s.span_stripe = stripe;
+    } else {
+      stripeSpans(c, s, stripe);
+    }
+    s.vl_row = -10;
+  }
+  const bool running = s.vl_row == y - 1;
+  const cv::Mat& lf = c.im->lf;
+  const cv::Mat& rr = c.im->rf_rev;
+  const float* l_rows[33];
+  const float* r_rows[33];
+  for (int j = 0; j < w; ++j) {
+    l_rows[j] = lf.ptr<float>(y - r + j);
+    r_rows[j] = rr.ptr<float>(y - r + j);
+  }
+  // Mirrored right statistics and trackers of this row (zero / empty outside the border).
+  const int rp = s.rpad;
+  std::fill(s.srr.begin(), s.srr.end(), 0.f);
+  std::fill(s.irr.begin(), s.irr.end(), 0.f);
+  std::fill(s.rbv_rev.begin(), s.rbv_rev.end(), kNegInf);
+  std::fill(s.rbd_rev.begin(), s.rbd_rev.end(), 0.f);
+  const int stride = rp + W + 16;
+  for (int q = r; q <= W - 1 - r; ++q) {
+    s.srr[rp + W - 1 - q] = s.maps.sum_r[q];
+    s.irr[rp + W - 1 - q] = s.maps.inv_r[q];
+  }
+  LaneRowArgs a;
+  a.width = W;
+  a.r = r;
+  a.w = w;
+  a.dp = dp;
+  a.dmin = c.dmin;
+  a.rev_pad = c.im->rev_pad;
+  a.rp = rp;
+  a.rb_stride = stride;
+  a.running = running;
+  a.slide = c.uniform_ranges;
+  a.g0 = s.vl_g0.data();
+  a.g1 = s.vl_g1.data();
+  a.vl = s.vl.data();
+  a.l_in = lf.ptr<float>(y + r);
+  a.r_in = rr.ptr<float>(y + r);
+  a.l_out = running ? lf.ptr<float>(y - r - 1) : nullptr;
+  a.r_out = running ? rr.ptr<float>(y - r - 1) : nullptr;
+  a.l_rows = l_rows;
+  a.r_rows = r_rows;
+  a.elo = s.elo_i.data();
+  a.ehi = s.ehi_i.data();
+  a.act = s.act.data();
+  a.mean_l = s.maps.mean_l.data();
+  a.inv_l = s.maps.inv_l.data();
+  a.srr = s.srr.data();
+  a.irr = s.irr.data();
+  a.rbv = s.rbv_rev.data();
+  a.rbd = s.rbd_rev.data();
+  a.h = s.hrow.data();
+  a.prof = s.lprof.data() + 8;
+  a.best = s.best.data();
+  a.best_d = s.best_d.data();
+  a.best_l = s.best_l.data();
+  a.best_r = s.best_r.data();
+  a.second = s.second.data();
+  lanePass1(a);
+  s.vl_row = y;
+  lanePass2(a);
+  laneMergeTrackers(s.rbv_rev.data(), s.rbd_rev.data(), stride, rp + W + 16);
+  for (int q = 0; q < W; ++q) s.rb_d[q] = s.rbd_rev[rp + W - 1 - q];
+}
+
 /// Profiles of the active pixels of row y (phase A), from per-column sums.
 void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
   const int r = c.r;
@@ -1257,42 +1677,16 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
   }
 }
 
-/// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
-/// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
-/// The window sum of left pixel q + d at disparity d gathers column x' of the column sums at
-/// entry d for |x' - q - d| <= r; so each column adds a contiguous run of entries to the profile.
-ES_KERNEL void rlAccumulate(int xa, int xb, int q, int r, int dmin, int nd, int dp,
-                            const float* __restrict colsum, const int* __restrict k0,
-                            const int* __restrict k1, float* __restrict h) {
-  for (int k = 0; k < dp; ++k) h[k] = 0.f;
-  // Each column adds a run of at most w entries: whole 8-lane groups, the last one masked.
-  // Masked lanes add +0, which leaves every h unchanged (h starts at +0 and a sum of exact
-  // values never becomes -0); h and colsum are padded for the reads past the run.
-  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
-  const V8f zero = splat8(0.f);
-  for (int xx = xa; xx <= xb; ++xx) {
-    const int ka = std::max({0, xx - q - dmin - r, k0[xx]});
-    const int kb = std::min({nd - 1, xx - q - dmin + r, k1[xx]});
-    const float* cs = colsum + static_cast<size_t>(xx) * dp;
-    int k = ka;
-    for (; k + 8 <= kb + 1; k += 8) store8(h + k, load8(h + k) + load8(cs + k));
-    if (k <= kb) {
-      const int left = kb - k + 1;
-      const V8i m = lane < V8i{left, left, left, left, left, left, left, left};
-      store8(h + k, load8(h + k) + (m ? load8(cs + k) : zero));
-    }
-  }
-}
-
 ES_KERNEL void nccSpan(int n, const float* __restrict h, const float* __restrict mean_l,
                        const float* __restrict inv_l, float sum_r, float inv_r,
                        float* __restrict out) {
   for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l[i] * sum_r) * inv_l[i] * inv_r;
 }
 
+/// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
+/// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
 void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   const int r = c.r;
-  const int nd = c.dmax - c.dmin + 1;
   // Disparities whose left pixel q + d has d in its range: all of them inside the border with a
   // full search; with per-pixel ranges (narrow) usually a few, and only their columns are needed.
   int dv0 = std::max(c.dmin, r - q), dv1 = std::min(c.dmax, c.width - 1 - r - q);
@@ -1313,11 +1707,17 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
     s.rb_d[q] = 0.f;
     return;
   }
-  const int xa = std::max(0, q + dv0 - r), xb = std::min(c.width - 1, q + dv1 + r);
-  for (int xx = xa; xx <= xb; ++xx) ensureColumn(c, s, xx, y);
+  // S_RL(q, d) sums the right-indexed columns q - r .. q + r at entry d (q is inside the border:
+  // it is x - d of a pixel whose right window fits).
+  const int k0 = ((dv0 - c.dmin) / 8) * 8;
+  const int k1 = std::min(s.dpad - 1, ((dv1 - c.dmin) / 8) * 8 + 7);
+  for (int qq = q - r; qq <= q + r; ++qq) ensureColumnR(c, s, qq, y, k0, k1);
   float* h = s.hvec.data();
-  rlAccumulate(xa, xb, q, r, c.dmin, nd, s.dpad, s.colsum.data(), s.col_k0.data(), s.col_k1.data(),
-               h);
+  std::memcpy(h + k0, s.colsum_r.data() + static_cast<size_t>(q - r) * s.dpad + k0,
+              sizeof(float) * (k1 - k0 + 1));
+  for (int qq = q - r + 1; qq <= q + r; ++qq) {
+    vecAdd(k1 - k0 + 1, h + k0, s.colsum_r.data() + static_cast<size_t>(qq) * s.dpad + k0);
+  }
   const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
   // Left pixels inside the border: q + d in [r, W - 1 - r].
   const int d0 = std::max(c.dmin, r - q), d1 = std::min(c.dmax, c.width - 1 - r - q);
@@ -1372,14 +1772,26 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // Open = requested range, not accepted yet. Dense when most of the row is open (the first
   // window): then every column's range and statistics are needed and computed row-wide; sparse
   // rows compute them where needed.
-  int n_req = 0, n_open = 0;
-  for (int x = r; x < W - r; ++x) {
-    const int req = rlo[x] <= rhi[x];
-    n_req += req;
-    n_open += req & (st[x] == 0);
+  std::vector<int>& open = (*c.open_rows)[y];
+  if (c.level == 0) {
+    open.clear();
+    for (int x = r; x < W - r; ++x) {
+      if (rlo[x] <= rhi[x]) open.push_back(x);
+    }
+    (*c.n_req_rows)[y] = static_cast<int>(open.size());
+  } else {
+    // Drop the pixels accepted with the smaller windows and those the larger window's border
+    // excludes (it only grows).
+    size_t kept = 0;
+    for (const int x : open) {
+      if (st[x] == 0 && x >= r && x < W - r) open[kept++] = x;
+    }
+    open.resize(kept);
   }
+  const int n_open = static_cast<int>(open.size());
   if (n_open == 0) return;
-  const bool dense = 2 * n_open >= n_req;
+  // The engine choice only decides speed: both give the same values.
+  const bool dense = 2 * n_open >= (*c.n_req_rows)[y];
   if (dense) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
@@ -1406,13 +1818,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     // touch (within the disparity span of an open pixel), vectorised; structure values lazily.
     // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
     if (c.uniform_ranges) {
-      int omin = W, omax = -1;
-      for (int x = r; x < W - r; ++x) {
-        if (st[x] == 0 && rlo[x] <= rhi[x]) {
-          omin = std::min(omin, x);
-          omax = x;
-        }
-      }
+      const int omin = open.front(), omax = open.back();
       const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
       computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
     }
@@ -1420,8 +1826,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // Active = open, effective range of at least 3 values (an interior maximum needs two
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
-  for (int x = r; x < W - r; ++x) {
-    if (st[x] != 0 || rlo[x] > rhi[x]) continue;
+  for (const int x : open) {
     int lo, hi;
     if (!effectiveRange(c, x, y, &lo, &hi)) continue;
     if (hi - lo < 2) {
@@ -1463,7 +1868,9 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
     std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
-    if (c.uniform_ranges) {
+    if (kLanes && c.uniform_ranges) {
+      denseLanesRow(c, s, y);
+    } else if (c.uniform_ranges) {
       denseUniformRow(c, s, y);
     } else {
       s.pick.clear();
@@ -1477,6 +1884,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
   } else {
     updateHotColumns(c, s, y);
+    updateHotColumnsR(c, s, y);
     sparseProfiles(c, s, y);
     // Right-to-left profiles only where a pixel passes everything but the left-right check.
     s.cand_q.clear();
@@ -1588,22 +1996,40 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   out.stats = MatchStats{};
   out.stats.total_pixels = static_cast<int64_t>(W) * H;
 
-  left.convertTo(im.lf, CV_32F, 1.0, -128.0);
-  right.convertTo(im.rf, CV_32F, 1.0, -128.0);
-  // Mirrored right view for the sparse engine, padded so that every disparity of the range can
-  // be read for every column (the padding is zero; those disparities are outside the ranges).
+  // The two views are prepared in parallel (two fixed tasks: the result does not depend on the
+  // thread count). Intensities as value - 128 (float, exact products); the right view mirrored
+  // and padded so that every disparity of the range can be read for every column (sparse and
+  // dense engines), the left view padded for the right-indexed column sums (the padding is
+  // zero; those disparities are outside the ranges); integral images of the views, of their
+  // squares, of the 3x3 Laplacian and of its square (window statistics and structure).
   im.rev_pad = std::max(0, -mp.min_disparity);
+  im.l_pad = std::max(0, -mp.min_disparity);
   const int dpad = (nd + 7) / 8 * 8;
-  const int rev_w = im.rev_pad + W + std::max(0, mp.min_disparity + dpad) + 8;
-  im.rf_rev.create(H, rev_w, CV_32F);
-  im.rf_rev.setTo(0.f);
-  cv::flip(im.rf, im.rf_rev(cv::Rect(im.rev_pad, 0, W, H)), 1);
-  cv::integral(left, im.int_l, im.sq_l, CV_32S, CV_64F);
-  cv::integral(right, im.int_r, im.sq_r, CV_32S, CV_64F);
-  cv::Laplacian(left, im.lap_l, CV_32F, 1);
-  cv::Laplacian(right, im.lap_r, CV_32F, 1);
-  cv::integral(im.lap_l, im.int_lap_l, im.sq_lap_l, CV_64F, CV_64F);
-  cv::integral(im.lap_r, im.int_lap_r, im.sq_lap_r, CV_64F, CV_64F);
+  const int pad_w = std::max(0, mp.min_disparity + dpad) + 8;
+  cv::parallel_for_(
+      cv::Range(0, 2),
+      [&](const cv::Range& views) {
+        for (int v = views.start; v < views.end; ++v) {
+          if (v == 0) {
+            left.convertTo(im.lf, CV_32F, 1.0, -128.0);
+            im.lf_pad.create(H, im.l_pad + W + pad_w, CV_32F);
+            im.lf_pad.setTo(0.f);
+            im.lf.copyTo(im.lf_pad(cv::Rect(im.l_pad, 0, W, H)));
+            cv::integral(left, im.int_l, im.sq_l, CV_32S, CV_64F);
+            cv::Laplacian(left, im.lap_l, CV_32F, 1);
+            cv::integral(im.lap_l, im.int_lap_l, im.sq_lap_l, CV_64F, CV_64F);
+          } else {
+            right.convertTo(im.rf, CV_32F, 1.0, -128.0);
+            im.rf_rev.create(H, im.rev_pad + W + pad_w, CV_32F);
+            im.rf_rev.setTo(0.f);
+            cv::flip(im.rf, im.rf_rev(cv::Rect(im.rev_pad, 0, W, H)), 1);
+            cv::integral(right, im.int_r, im.sq_r, CV_32S, CV_64F);
+            cv::Laplacian(right, im.lap_r, CV_32F, 1);
+            cv::integral(im.lap_r, im.int_lap_r, im.sq_lap_r, CV_64F, CV_64F);
+          }
+        }
+      },
+      2);
 
   im.range_lo.create(H, W, CV_32S);
   im.range_hi.create(H, W, CV_32S);
@@ -1636,6 +2062,17 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   im.window_idx.setTo(0);
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
+  static const bool kProf = std::getenv("ES_MATCH_PROFILE") != nullptr;  // TEMP
+  auto tp = t0;
+  auto lap = [&](const char* what) {
+    if (!kProf) return;
+    const auto t = std::chrono::steady_clock::now();
+    std::fprintf(stderr, "%s %.1f | ", what, std::chrono::duration<double, std::milli>(t - tp).count());
+    tp = t;
+  };
+  lap("pre");
+  im.open_rows.resize(H);
+  im.n_req_rows.assign(H, 0);
   const int num_stripes = (H + kStripeRows - 1) / kStripeRows;
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
@@ -1652,6 +2089,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
                          mp.max_disparity,
                          &im.state,
                          &im.window_idx,
+                         &im.open_rows,
+                         &im.n_req_rows,
                          &out};
     cv::parallel_for_(
         cv::Range(0, num_stripes),
@@ -1666,11 +2105,13 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
           im.release(std::move(s));
         },
         num_stripes);
+    lap("L");
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.tmp1, im.tmp2,
                          im.tmp3, im.tmp4, im.tmp5);
   }
+  lap("edge");
   const auto t1 = std::chrono::steady_clock::now();
 
   for (int y = 0; y < H; ++y) {
@@ -1716,6 +2157,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   const auto t2 = std::chrono::steady_clock::now();
   out.stats.match_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stats.filter_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+  lap("filt");
+  if (kProf) std::fprintf(stderr, "\n");
 }
 
 }  // namespace endo_stereo
