@@ -9,18 +9,24 @@
 //   Window means and variances come from integral images (exact in int32 / double).
 // - Rows are processed in fixed stripes (cv::parallel_for_ over stripe indices that do not depend
 //   on the thread count). For one window size, a row is matched by one of two engines:
-//   * dense rows (most pixels still undecided: always at the first window): disparities are
-//     streamed in increasing order; for each d, the vertical window sums of L(x, y') R(x - d, y')
-//     of the previous row are updated by one row in and one row out, summed horizontally, turned
-//     into the NCC slice S(., d) and fed to a per-pixel peak tracker. Nothing else is stored: the
-//     best interior local maximum with its two neighbours (for the parabola), the highest other
-//     maximum (for the peak gap) and, for every right pixel q, the best d of its right-to-left
-//     profile S_RL(q, d) = S_LR(q + d, d), which is the left-right check without a second pass.
+//   * dense rows (most pixels still undecided: always at the first window), full search: the
+//     "lanes" engine. Each column holds its vertical window sums of L(x, y') R(x - d, y') for all
+//     d, contiguous in d (8 disparities per vector), carried from row to row by one row in and
+//     one row out; a pixel's window sums slide along the row; its profile S(x, .) is formed 8
+//     disparities at a time and analysed per lane (best interior local maximum, its index, the
+//     best other maximum), and offered to the right-to-left tracker of every right pixel x - d,
+//     held mirrored so that it is contiguous in d too: S_RL(q, d) = S_LR(q + d, d) is the
+//     left-right check without a second pass.
+//   * dense rows with per-pixel search ranges (temporal priors): disparities are streamed in
+//     increasing order over the column intervals whose pixels search them; for each d the
+//     vertical sums are updated by one row, summed horizontally, turned into the NCC slice
+//     S(., d) and fed to a per-pixel streaming peak tracker (and the right-to-left tracker).
 //   * sparse rows (the pixels that failed with the smaller windows): the vertical window sums are
 //     kept per column for all d at once (so a failed region that spans many rows is updated by
 //     running sums), the profile of each failed pixel is built from them, and the right-to-left
-//     profile is computed only for the right pixels that those profiles point at.
-//   Both compute S with the same float expression from the same exact sums, so they agree.
+//     profile is computed only for the right pixels that those profiles point at, from column
+//     sums indexed by the right column (w columns per profile).
+//   All compute S with the same float expression from the same exact sums, so they agree.
 // - Only the pixels that failed with one window go on to the next; pixels whose left patch lacks
 //   structure at a window are not matched with it at all.
 //
@@ -40,8 +46,6 @@
 #endif
 #include <chrono>
 #include <cmath>
-#include <cstdio>
-#include <cstdlib>
 #include <cstring>
 #include <limits>
 #include <memory>
@@ -60,7 +64,6 @@ namespace endo_stereo {
 namespace {
 
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
-static const bool kLanes = std::getenv("ES_OLD_DENSE") == nullptr;  // TEMP: A/B switch
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
 // Column blocks used to find, per disparity, the column intervals worth computing (dense rows).
@@ -99,8 +102,6 @@ struct Scratch {
   int num_d = 0;
   int dpad = 0;           // num_d rounded up to a multiple of 8
   int stamp = 0;          // increases with every processed row
-  int uniform_row = -10;  // row whose vertical sums denseUniformRow left valid
-  std::vector<int> upto;  // denseUniformRow: per disparity, next column to update
   // Dense engine.
   std::vector<float> v;          // vertical window sums, num_d rows of width
   std::vector<VValidity> valid;  // per disparity
@@ -181,7 +182,6 @@ struct Scratch {
     const int nb = (w + kBlock - 1) / kBlock;
     cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
     iv_start.assign(nd + 1, 0);
-    upto.assign(nd, 0);
     block_a.assign(nb, 0);
     block_b.assign(nb, 0);
     // + 8: padding for whole 8-lane groups past the last disparity of a column.
@@ -233,7 +233,6 @@ struct Scratch {
     hot_r.clear();
     vl_row = -10;
     span_stripe = -1;
-    uniform_row = -10;
   }
 };
 
@@ -411,7 +410,7 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
       cand = max8(cand, lo_end ? a1 : vninf);
       cand = max8(cand, hi_end ? s : vninf);
       store8(second + i, max8(load8(second + i), cand));
-      if (anyLane(new_best)) {  // rare: see sliceInterior
+      if (anyLane(new_best)) {  // rare once the profile has risen: skip the selects and stores
         store8(best + i, new_best ? a1 : bb);
         store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
         store8(best_l + i, new_best ? a2 : load8(best_l + i));
@@ -467,81 +466,6 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
 }
 
 ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true>(g); }
-
-/// The same update where d is known to lie strictly inside every pixel's range, two past its low
-/// end and one before its high end (the bulk of a full search): no range masks, no range-end
-/// competitors, and every pixel's state is updated (those that are not active are ignored later).
-ES_KERNEL void sliceInterior(const SliceArgs& g) {
-  const float* __restrict vs = g.v;
-  const float* __restrict h = g.h;
-  const float* __restrict mean_l = g.mean_l;
-  const float* __restrict inv_l = g.inv_l;
-  const float* __restrict sum_r = g.sum_r;
-  const float* __restrict inv_r = g.inv_r;
-  float* __restrict p1 = g.p1;
-  float* __restrict p2 = g.p2;
-  float* __restrict best = g.best;
-  float* __restrict best_d = g.best_d;
-  float* __restrict best_l = g.best_l;
-  float* __restrict best_r = g.best_r;
-  float* __restrict second = g.second;
-  float* __restrict rb_v = g.rb_v;
-  float* __restrict rb_d = g.rb_d;
-  const int w = g.w;
-  const V8f vd = splat8(g.d);
-  const V8f vdm1 = splat8(g.d - 1.f);
-  const V8f vninf = splat8(kNegInf);
-  const int n = g.n;
-  int i = 0;
-  for (; i + 8 <= n; i += 8) {
-    const V8f hs = vs ? boxSum8(vs + i, w) : load8(h + i);
-    const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
-    const V8f a1 = load8(p1 + i), a2 = load8(p2 + i), bb = load8(best + i);
-    const V8i is_max = (a1 > a2) & (a1 >= s);
-    const V8i new_best = is_max & (a1 > bb);
-    const V8f cand = new_best ? bb : (is_max ? a1 : vninf);
-    store8(second + i, max8(load8(second + i), cand));
-    // A new best is rare once the profile has risen: skip the four selects and stores then.
-    if (anyLane(new_best)) {
-      store8(best + i, new_best ? a1 : bb);
-      store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
-      store8(best_l + i, new_best ? a2 : load8(best_l + i));
-      store8(best_r + i, new_best ? s : load8(best_r + i));
-    }
-    store8(p2 + i, a1);
-    store8(p1 + i, s);
-    const V8f rv = load8(rb_v + i);
-    const V8i up = s > rv;
-    store8(rb_v + i, up ? s : rv);
-    store8(rb_d + i, up ? vd : load8(rb_d + i));
-  }
-  const float d = g.d, dm1 = g.d - 1.f;
-  for (; i < n; ++i) {
-    float hs;
-    if (vs) {
-      hs = vs[i];
-      for (int j = 1; j < w; ++j) hs += vs[i + j];
-    } else {
-      hs = h[i];
-    }
-    const float s = (hs - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
-    const float a1 = p1[i], a2 = p2[i], bb = best[i];
-    const bool is_max = (a1 > a2) & (a1 >= s);
-    const bool new_best = is_max & (a1 > bb);
-    const float cand = new_best ? bb : (is_max ? a1 : kNegInf);
-    second[i] = std::max(second[i], cand);
-    best[i] = new_best ? a1 : bb;
-    best_d[i] = new_best ? dm1 : best_d[i];
-    best_l[i] = new_best ? a2 : best_l[i];
-    best_r[i] = new_best ? s : best_r[i];
-    p2[i] = a1;
-    p1[i] = s;
-    const float rv = rb_v[i];
-    const bool up = s > rv;
-    rb_v[i] = up ? s : rv;
-    rb_d[i] = up ? d : rb_d[i];
-  }
-}
 
 /// The NCC from exact sums; both engines use this same expression, so they agree bit for bit.
 inline float nccValue(float h, float mean_l, float sum_r, float inv_l, float inv_r) {
@@ -959,15 +883,8 @@ void sliceRange(const LevelContext& c, Scratch& s, int k, int a, int b, const fl
   // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
   // tracker; beyond, the doubling passes are cheaper.
   const bool direct = c.w <= 15;
-  // Columns where d is strictly inside every pixel's range (full search only: per-pixel ranges
-  // vary from pixel to pixel): d >= lo + 2 needs x <= d + W - 3 - r, d <= hi - 1 needs
-  // x >= d + 1 + r, with dmin + 2 <= d <= dmax - 1.
-  int fast_a = 1, fast_b = 0;
-  if (c.uniform_ranges && d >= c.dmin + 2 && d <= c.dmax - 1) {
-    fast_a = d + 1 + r;
-    fast_b = d + c.width - 3 - r;
-  }
-  auto run = [&](int ra, int rb, bool interior) {
+  {
+    const int ra = a, rb = b;
     if (ra > rb) return;
     const int n = rb - ra + 1;
     SliceArgs g;
@@ -998,19 +915,7 @@ void sliceRange(const LevelContext& c, Scratch& s, int k, int a, int b, const fl
     g.second = s.second.data() + ra;
     g.rb_v = s.rb_v.data() + ra - d;
     g.rb_d = s.rb_d.data() + ra - d;
-    if (interior) {
-      sliceInterior(g);
-    } else {
-      sliceOwnAndRl(g);
-    }
-  };
-  const int fa = std::max(a, fast_a), fb = std::min(b, fast_b);
-  if (fa > fb) {
-    run(a, b, false);
-  } else {
-    run(a, fa - 1, false);
-    run(fa, fb, true);
-    run(fb + 1, b, false);
+    sliceOwnAndRl(g);
   }
 }
 
@@ -1032,46 +937,6 @@ void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval
   ensureV(c, s, k, y, s.need);
   const float* v = s.v.data() + static_cast<size_t>(k) * c.width;
   for (int i = 0; i < count; ++i) sliceRange(c, s, k, out_ivs[i].a, out_ivs[i].b, v);
-}
-
-/// A dense row of a full search: disparity d is in the range of exactly the columns
-/// [d + r, d + W - 1 - r] (within [r, W - 1 - r]). The row is walked in chunks of kChunk columns,
-/// all disparities per chunk, so the per-pixel state of a chunk stays in the L1 cache; the
-/// vertical sums of each disparity are brought up to the chunk's right edge (plus r) as it goes.
-/// Chunks keep the order of disparities for every right pixel (x = q + d grows with d), so the
-/// right-to-left ties resolve as in a plain sweep.
-void denseUniformRow(const LevelContext& c, Scratch& s, int y) {
-  constexpr int kChunk = 128;
-  const int W = c.width, r = c.r, nd = c.dmax - c.dmin + 1;
-  const cv::Mat& lf = c.im->lf;
-  const cv::Mat& rf = c.im->rf;
-  const bool running = s.uniform_row == y - 1;
-  for (int k = 0; k < nd; ++k) s.upto[k] = std::max(r, c.dmin + k + r) - r;
-  for (int x0 = r; x0 <= W - 1 - r; x0 += kChunk) {
-    const int x1 = std::min(x0 + kChunk - 1, W - 1 - r);
-    for (int k = 0; k < nd; ++k) {
-      const int d = c.dmin + k;
-      const int a = std::max({r, d + r, x0}), b = std::min({W - 1 - r, d + W - 1 - r, x1});
-      if (a > b) continue;
-      float* v = s.v.data() + static_cast<size_t>(k) * W;
-      const int va = s.upto[k], vb = b + r;
-      if (va <= vb) {
-        const int n = vb - va + 1;
-        if (running) {
-          vRunning(n, v + va, lf.ptr<float>(y + r) + va, rf.ptr<float>(y + r) + va - d,
-                   lf.ptr<float>(y - r - 1) + va, rf.ptr<float>(y - r - 1) + va - d);
-        } else {
-          vSet(n, v + va, lf.ptr<float>(y - r) + va, rf.ptr<float>(y - r) + va - d);
-          for (int yy = y - r + 1; yy <= y + r; ++yy) {
-            vAdd(n, v + va, lf.ptr<float>(yy) + va, rf.ptr<float>(yy) + va - d);
-          }
-        }
-        s.upto[k] = vb + 1;
-      }
-      sliceRange(c, s, k, a, b, v);
-    }
-  }
-  s.uniform_row = y;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1406,6 +1271,54 @@ struct LaneRowArgs {
   float *best, *best_d, *best_l, *best_r, *second;
 };
 
+/// Greatest lane, in every lane (three butterfly steps).
+ES_INLINE V8f hmax8(V8f v) {
+  v = max8(v, __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3}));
+  v = max8(v, __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5}));
+  return max8(v, __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6}));
+}
+/// Least lane, in every lane.
+ES_INLINE V8i hmin8(V8i v) {
+  V8i t = __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3});
+  v = t < v ? t : v;
+  t = __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5});
+  v = t < v ? t : v;
+  t = __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6});
+  return t < v ? t : v;
+}
+
+/// One 8-lane group of a dense pixel's profile: S for the lanes k .. k + 7, stored to prof, and
+/// the right-to-left offers; with kMasked only the lanes inside [klo, khi] offer.
+template <bool kMasked>
+ES_INLINE void laneGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V8f il,
+                         const float* __restrict h, const float* __restrict srr,
+                         const float* __restrict irr, float* __restrict prof,
+                         float* __restrict rbv, float* __restrict rbd) {
+  const V8f sv = (load8(h + k) - ml * load8(srr + k)) * il * load8(irr + k);
+  store8(prof + k, sv);
+  const V8f rv = load8(rbv + k);
+  V8i up = sv > rv;
+  if (kMasked) up &= (kk >= vklo) & (kk <= vkhi);
+  store8(rbv + k, up ? sv : rv);
+  store8(rbd + k, up ? dv : load8(rbd + k));
+}
+
+/// Interior local maxima of one group, folded into the per-lane trackers: the lane's best (first
+/// of equal values: strict >), its index, and the best of the lane's other maxima. With kMasked
+/// only lanes strictly inside (klo, khi) count.
+template <bool kMasked>
+ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restrict prof, V8f& bv,
+                         V8f& sv, V8i& bk) {
+  const V8f v = load8(prof + k);
+  V8i mx = (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
+  if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
+  const V8f mv = mx ? v : splat8(kNegInf);
+  const V8i gt = mv > bv;
+  sv = gt ? bv : max8(sv, mv);
+  bk = gt ? kk : bk;
+  bv = gt ? mv : bv;
+}
+
 /// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
 ES_KERNEL void lanePass1(const LaneRowArgs& a) {
   const int W = a.width, dp = a.dp;
@@ -1483,48 +1396,44 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     const V8i vklo = V8i{klo, klo, klo, klo, klo, klo, klo, klo};
     const V8i vkhi = V8i{khi, khi, khi, khi, khi, khi, khi, khi};
     const float dk0 = static_cast<float>(a.dmin + 8 * g0);
-    V8f dv = lane_f + V8f{dk0, dk0, dk0, dk0, dk0, dk0, dk0, dk0};
-    V8i kk = lane + V8i{8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0};
-    for (int g = g0; g <= g1; ++g, dv += eight_f, kk += eight_i) {
-      const int k = 8 * g;
-      const V8f sv = (load8(h + k) - ml * load8(a.srr + m + k)) * il * load8(a.irr + m + k);
-      store8(prof + k, sv);
-      const V8i inr = (kk >= vklo) & (kk <= vkhi);
-      const V8f rv = load8(rbv + m + k);
-      const V8i up = inr & (sv > rv);
-      store8(rbv + m + k, up ? sv : rv);
-      store8(rbd + m + k, up ? dv : load8(rbd + m + k));
+    const V8f dv0 = lane_f + V8f{dk0, dk0, dk0, dk0, dk0, dk0, dk0, dk0};
+    const V8i kk0 = lane + V8i{8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0};
+    const float* srr = a.srr + m;
+    const float* irr = a.irr + m;
+    float* rbvm = rbv + m;
+    float* rbdm = rbd + m;
+    // Only the first and the last group can hold lanes outside the range.
+    laneGroup<true>(8 * g0, kk0, dv0, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
+    {
+      V8f dv = dv0 + eight_f;
+      V8i kk = kk0 + eight_i;
+      for (int g = g0 + 1; g < g1; ++g, dv += eight_f, kk += eight_i) {
+        laneGroup<false>(8 * g, kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
+      }
+      if (g1 > g0) laneGroup<true>(8 * g1, kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
     }
     if (!(a.act[x] > 0.f)) continue;
-    // Interior local maxima (klo < k < khi), tracked per lane in increasing k: the lane's best
-    // (first of equal values: strict >), its index, and the best of the lane's other maxima.
     V8f bv = vninf, sv = vninf;
     V8i bk = V8i{0, 0, 0, 0, 0, 0, 0, 0};
-    kk = lane + V8i{8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0, 8 * g0};
-    for (int g = g0; g <= g1; ++g, kk += eight_i) {
-      const int k = 8 * g;
-      const V8f v = load8(prof + k);
-      const V8i mx =
-          (kk > vklo) & (kk < vkhi) & (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
-      const V8f mv = mx ? v : vninf;
-      const V8i gt = mv > bv;
-      sv = gt ? bv : max8(sv, mv);
-      bk = gt ? kk : bk;
-      bv = gt ? mv : bv;
-    }
-    // The highest maximum, at its smallest index; every other maximum competes for second.
-    float b = bv[0];
-    int lb = 0;
-    for (int i = 1; i < 8; ++i) {
-      if (bv[i] > b || (bv[i] == b && bk[i] < bk[lb])) {
-        b = bv[i];
-        lb = i;
+    peakGroup<true>(8 * g0, kk0, vklo, vkhi, prof, bv, sv, bk);
+    {
+      V8i kk = kk0 + eight_i;
+      for (int g = g0 + 1; g < g1; ++g, kk += eight_i) {
+        peakGroup<false>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
       }
+      if (g1 > g0) peakGroup<true>(8 * g1, kk, vklo, vkhi, prof, bv, sv, bk);
     }
+    // The highest maximum at its smallest index (lanes hold distinct indices); every other
+    // maximum competes for second.
+    const V8f bmax = hmax8(bv);
+    const float b = bmax[0];
     float sec = kNegInf;
     if (b != kNegInf) {
-      for (int i = 0; i < 8; ++i) sec = std::max(sec, i == lb ? sv[i] : bv[i]);
-      const int bi = bk[lb];
+      const int big = std::numeric_limits<int>::max();
+      const V8i cand = bv == bmax ? bk : V8i{big, big, big, big, big, big, big, big};
+      const int bi = hmin8(cand)[0];
+      const V8i sel = bk == V8i{bi, bi, bi, bi, bi, bi, bi, bi};
+      sec = hmax8(sel ? sv : bv)[0];
       a.best_d[x] = static_cast<float>(a.dmin + bi);
       a.best_l[x] = prof[bi - 1];
       a.best_r[x] = prof[bi + 1];
@@ -1868,10 +1777,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     }
     std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
     std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
-    if (kLanes && c.uniform_ranges) {
+    if (c.uniform_ranges) {
       denseLanesRow(c, s, y);
-    } else if (c.uniform_ranges) {
-      denseUniformRow(c, s, y);
     } else {
       s.pick.clear();
       for (int x = r; x < W - r; ++x) {
@@ -2062,15 +1969,6 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   im.window_idx.setTo(0);
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
-  static const bool kProf = std::getenv("ES_MATCH_PROFILE") != nullptr;  // TEMP
-  auto tp = t0;
-  auto lap = [&](const char* what) {
-    if (!kProf) return;
-    const auto t = std::chrono::steady_clock::now();
-    std::fprintf(stderr, "%s %.1f | ", what, std::chrono::duration<double, std::milli>(t - tp).count());
-    tp = t;
-  };
-  lap("pre");
   im.open_rows.resize(H);
   im.n_req_rows.assign(H, 0);
   const int num_stripes = (H + kStripeRows - 1) / kStripeRows;
@@ -2105,13 +2003,11 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
           im.release(std::move(s));
         },
         num_stripes);
-    lap("L");
   }
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.tmp1, im.tmp2,
                          im.tmp3, im.tmp4, im.tmp5);
   }
-  lap("edge");
   const auto t1 = std::chrono::steady_clock::now();
 
   for (int y = 0; y < H; ++y) {
@@ -2157,8 +2053,6 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   const auto t2 = std::chrono::steady_clock::now();
   out.stats.match_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stats.filter_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
-  lap("filt");
-  if (kProf) std::fprintf(stderr, "\n");
 }
 
 }  // namespace endo_stereo

@@ -60,7 +60,7 @@ double timeMs(F&& f, std::vector<double>* cpu = nullptr) {
 
 int main(int argc, char** argv) {
   int frames = 15, threads = 0, width = 960, height = 540, window_max = 0;
-  bool run_full = true, run_prior = true;
+  bool run_full = true, run_prior = true, quick = false;
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() { return i + 1 < argc ? std::atoi(argv[++i]) : 0; };
@@ -78,6 +78,8 @@ int main(int argc, char** argv) {
       run_prior = false;
     else if (a == "--only-prior")
       run_full = false;
+    else if (a == "--quick")  // for profilers: no warm-up, no SGBM, no thread-identity check
+      quick = true;
     else {
       std::fprintf(stderr,
                    "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] "
@@ -123,17 +125,22 @@ int main(int argc, char** argv) {
   es::MatchResult res;
   cv::Mat sg_disp;
   // Warm-up: first-call allocations of both.
-  matcher.compute(scene.left, scene.right, res);
-  sgbm->compute(scene.left, scene.right, sg_disp);
+  if (!quick) {
+    matcher.compute(scene.left, scene.right, res);
+    sgbm->compute(scene.left, scene.right, sg_disp);
+  }
   std::vector<double> t_ours, t_sgbm, t_prior, t_match, t_filter, c_ours, c_sgbm, c_prior;
   for (int i = 0; i < frames && run_full; ++i) {
-    t_sgbm.push_back(timeMs([&] { sgbm->compute(scene.left, scene.right, sg_disp); }, &c_sgbm));
+    if (!quick) {
+      t_sgbm.push_back(timeMs([&] { sgbm->compute(scene.left, scene.right, sg_disp); }, &c_sgbm));
+    }
     t_ours.push_back(timeMs([&] { matcher.compute(scene.left, scene.right, res); }, &c_ours));
     t_match.push_back(res.stats.match_ms);
     t_filter.push_back(res.stats.filter_ms);
   }
   const es::DisparityScore full_score =
-      es::scoreDisparity(res.disparity, scene.disparity, scene.occluded == 0);
+      res.disparity.empty() ? es::DisparityScore{}
+                            : es::scoreDisparity(res.disparity, scene.disparity, scene.occluded == 0);
   for (int i = 0; i < frames && run_prior; ++i) {
     t_prior.push_back(
         timeMs([&] { matcher.compute(scene.left, scene.right, res, &range); }, &c_prior));
@@ -170,16 +177,16 @@ int main(int argc, char** argv) {
                 static_cast<long long>(st.rejected[es::kCodeRejectEdge]),
                 static_cast<long long>(st.rejected[es::kCodeNoPeak]));
   };
-  if (run_full) {
+  if (run_full && !quick) {
     matcher.compute(scene.left, scene.right, res);
     outcome("full", res.stats);
   }
-  if (run_prior) {
+  if (run_prior && !quick) {
     matcher.compute(scene.left, scene.right, res, &range);
     outcome("+-4 px", res.stats);
   }
   // Identical output whatever the thread count (fixed row stripes, exact sums).
-  {
+  if (!quick) {
     es::MatcherParams p1 = mp, p2 = mp;
     p1.num_threads = 1;
     p2.num_threads = 2;
