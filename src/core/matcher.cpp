@@ -47,6 +47,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstring>
+#include <functional>
 #include <limits>
 #include <memory>
 #include <mutex>
@@ -1894,12 +1895,32 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   const int W = left.cols, H = left.rows;
   const int nd = mp.max_disparity - mp.min_disparity + 1;
 
+  // Whole-image loops run over fixed blocks of rows in parallel; counts are summed per block
+  // and then over blocks (integers: the totals do not depend on the split).
+  const int num_blocks = (H + kStripeRows - 1) / kStripeRows;
+  auto forRowBlocks = [&](const std::function<void(int, int, int)>& fn) {
+    cv::parallel_for_(
+        cv::Range(0, num_blocks),
+        [&](const cv::Range& rg) {
+          for (int b = rg.start; b < rg.end; ++b) {
+            fn(b, b * kStripeRows, std::min(H, (b + 1) * kStripeRows));
+          }
+        },
+        num_blocks);
+  };
   out.disparity.create(H, W, CV_32FC1);
-  out.disparity.setTo(std::numeric_limits<float>::quiet_NaN());
   out.code.create(H, W, CV_8UC1);
-  out.code.setTo(kCodeNotSearched);
   out.confidence.create(H, W, CV_32FC1);
-  out.confidence.setTo(0.f);
+  im.state.create(H, W, CV_8UC1);
+  im.window_idx.create(H, W, CV_8UC1);
+  forRowBlocks([&](int, int y0, int y1) {
+    const cv::Range rows(y0, y1);
+    out.disparity.rowRange(rows).setTo(std::numeric_limits<float>::quiet_NaN());
+    out.code.rowRange(rows).setTo(kCodeNotSearched);
+    out.confidence.rowRange(rows).setTo(0.f);
+    im.state.rowRange(rows).setTo(0);
+    im.window_idx.rowRange(rows).setTo(0);
+  });
   out.stats = MatchStats{};
   out.stats.total_pixels = static_cast<int64_t>(W) * H;
 
@@ -1942,31 +1963,30 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   im.range_hi.create(H, W, CV_32S);
   int64_t prior_pixels = 0;
   if (range && !range->empty()) {
-    for (int y = 0; y < H; ++y) {
-      const int16_t* lo = range->lo.ptr<int16_t>(y);
-      const int16_t* hi = range->hi.ptr<int16_t>(y);
-      int* olo = im.range_lo.ptr<int>(y);
-      int* ohi = im.range_hi.ptr<int>(y);
-      for (int x = 0; x < W; ++x) {
-        olo[x] = std::max<int>(lo[x], mp.min_disparity);
-        ohi[x] = std::min<int>(hi[x], mp.max_disparity);
-        if (lo[x] <= hi[x] && olo[x] <= ohi[x] &&
-            (olo[x] > mp.min_disparity || ohi[x] < mp.max_disparity)) {
-          ++prior_pixels;
+    std::vector<int64_t> block_prior(num_blocks, 0);
+    forRowBlocks([&](int b, int y0, int y1) {
+      int64_t n = 0;
+      for (int y = y0; y < y1; ++y) {
+        const int16_t* lo = range->lo.ptr<int16_t>(y);
+        const int16_t* hi = range->hi.ptr<int16_t>(y);
+        int* olo = im.range_lo.ptr<int>(y);
+        int* ohi = im.range_hi.ptr<int>(y);
+        for (int x = 0; x < W; ++x) {
+          olo[x] = std::max<int>(lo[x], mp.min_disparity);
+          ohi[x] = std::min<int>(hi[x], mp.max_disparity);
+          n += (lo[x] <= hi[x]) & (olo[x] <= ohi[x]) &
+               ((olo[x] > mp.min_disparity) | (ohi[x] < mp.max_disparity));
         }
       }
-    }
+      block_prior[b] = n;
+    });
+    for (const int64_t n : block_prior) prior_pixels += n;
   } else {
     im.range_lo.setTo(mp.min_disparity);
     im.range_hi.setTo(mp.max_disparity);
   }
   out.stats.prior_pixels = prior_pixels;
   const bool uniform = !(range && !range->empty());
-
-  im.state.create(H, W, CV_8UC1);
-  im.state.setTo(0);
-  im.window_idx.create(H, W, CV_8UC1);
-  im.window_idx.setTo(0);
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
   im.open_rows.resize(H);
@@ -2010,45 +2030,64 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   }
   const auto t1 = std::chrono::steady_clock::now();
 
-  for (int y = 0; y < H; ++y) {
-    const uint8_t* cd = out.code.ptr<uint8_t>(y);
-    for (int x = 0; x < W; ++x) {
-      if (cd[x] >= kCodeAcceptedBase) ++out.stats.accepted_per_window[cd[x] - kCodeAcceptedBase];
+  // Per block: accepted per window size (before the post-filters), then rejections and valid
+  // pixels (after); summed over blocks.
+  std::vector<MatchStats> block_stats(num_blocks);
+  forRowBlocks([&](int b, int y0, int y1) {
+    for (int y = y0; y < y1; ++y) {
+      const uint8_t* cd = out.code.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (cd[x] >= kCodeAcceptedBase) ++block_stats[b].accepted_per_window[cd[x] - kCodeAcceptedBase];
+      }
     }
-  }
+  });
 
   const PostFilterParams& fp = filter_params_;
   if (fp.remove_outliers) removeIsolatedOutliers(out.disparity, out.code, fp);
   if (fp.fill_holes) {
     out.code.copyTo(im.code_before);
     fillSmallHoles(out.disparity, out.code, fp);
-    // A filled pixel gets the lowest confidence of the measured neighbours it was filled from.
-    for (int y = 0; y < H; ++y) {
-      const uint8_t* cd = out.code.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (cd[x] != kCodeFilled || im.code_before.at<uint8_t>(y, x) == kCodeFilled) continue;
-        float cmin = 1.f;
-        for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
-          const uint8_t* cb = im.code_before.ptr<uint8_t>(yy);
-          const float* cf = out.confidence.ptr<float>(yy);
-          for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
-            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
+    // A filled pixel gets the lowest confidence of the measured neighbours it was filled from
+    // (reads accepted pixels' confidence only, writes filled pixels' only: blocks are independent).
+    forRowBlocks([&](int, int y0, int y1) {
+      for (int y = y0; y < y1; ++y) {
+        const uint8_t* cd = out.code.ptr<uint8_t>(y);
+        const uint8_t* cb0 = im.code_before.ptr<uint8_t>(y);
+        for (int x = 0; x < W; ++x) {
+          if (cd[x] != kCodeFilled || cb0[x] == kCodeFilled) continue;
+          float cmin = 1.f;
+          for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
+            const uint8_t* cb = im.code_before.ptr<uint8_t>(yy);
+            const float* cf = out.confidence.ptr<float>(yy);
+            for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
+              if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
+            }
           }
+          out.confidence.ptr<float>(y)[x] = cmin;
         }
-        out.confidence.at<float>(y, x) = cmin;
       }
-    }
+    });
   }
-  for (int y = 0; y < H; ++y) {
-    const uint8_t* cd = out.code.ptr<uint8_t>(y);
-    float* cf = out.confidence.ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      if (cd[x] < kNumRejectCodes) {
-        ++out.stats.rejected[cd[x]];
-        if (cd[x] != kCodeFilled) cf[x] = 0.f;
+  forRowBlocks([&](int b, int y0, int y1) {
+    MatchStats& st = block_stats[b];
+    for (int y = y0; y < y1; ++y) {
+      const uint8_t* cd = out.code.ptr<uint8_t>(y);
+      float* cf = out.confidence.ptr<float>(y);
+      for (int x = 0; x < W; ++x) {
+        if (cd[x] < kNumRejectCodes) {
+          ++st.rejected[cd[x]];
+          if (cd[x] != kCodeFilled) cf[x] = 0.f;
+        }
+        if (cd[x] >= kCodeAcceptedBase || cd[x] == kCodeFilled) ++st.valid_pixels;
       }
-      if (cd[x] >= kCodeAcceptedBase || cd[x] == kCodeFilled) ++out.stats.valid_pixels;
     }
+  });
+  for (const MatchStats& st : block_stats) {
+    for (size_t i = 0; i < st.rejected.size(); ++i) out.stats.rejected[i] += st.rejected[i];
+    for (size_t i = 0; i < st.accepted_per_window.size(); ++i) {
+      out.stats.accepted_per_window[i] += st.accepted_per_window[i];
+    }
+    out.stats.valid_pixels += st.valid_pixels;
   }
   const auto t2 = std::chrono::steady_clock::now();
   out.stats.match_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
