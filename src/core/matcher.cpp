@@ -115,7 +115,7 @@ struct Scratch {
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
-  std::vector<int> req_stamp, req_k0, req_k1;
+  std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi;
   // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
   // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
   // pixel q is then the sum of w whole columns (q - r .. q + r), not a diagonal through 64 + w
@@ -195,6 +195,8 @@ struct Scratch {
     req_stamp.assign(w, -1);
     req_k0.assign(w, 0);
     req_k1.assign(w, -1);
+    run_lo.assign(w, 0);
+    run_hi.assign(w, 0);
     hot.reserve(w);
     colsum_r.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
     colr_row.assign(w, -10);
@@ -1541,6 +1543,38 @@ void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
 }
 
 /// Profiles of the active pixels of row y (phase A), from per-column sums.
+/// Per-pixel ranges: the disparity indices each column of the run of active pixels
+/// s.active[i..j] must hold, the union of the effective ranges of the run's pixels whose windows
+/// contain it (the column sums feed only these pixels' profiles; the right-to-left profiles have
+/// their own sums), cached for columnRequest.
+void runRequests(const LevelContext& c, Scratch& s, int y, size_t i, size_t j) {
+  const int r = c.r;
+  const int a = s.active[i], b = s.active[j];
+  int* lo = s.run_lo.data();  // index x - a
+  int* hi = s.run_hi.data();
+  std::fill(lo, lo + (b - a + 1), kEmptyLo);
+  std::fill(hi, hi + (b - a + 1), kEmptyHi);
+  for (size_t t = i; t <= j; ++t) {
+    const int x = s.active[t];
+    int el, eh;
+    if (effectiveRange(c, x, y, &el, &eh)) {
+      lo[x - a] = el;
+      hi[x - a] = eh;
+    }
+  }
+  for (int x = a - r; x <= b + r; ++x) {
+    int l = kEmptyLo, h = kEmptyHi;
+    for (int xx = std::max(a, x - r); xx <= std::min(b, x + r); ++xx) {
+      l = std::min(l, lo[xx - a]);
+      h = std::max(h, hi[xx - a]);
+    }
+    if (l > h) l = h = c.dmin;
+    s.req_stamp[x] = s.stamp;
+    s.req_k0[x] = ((l - c.dmin) / 8) * 8;
+    s.req_k1[x] = std::min(s.dpad - 1, ((h - c.dmin) / 8) * 8 + 7);
+  }
+}
+
 void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
   const int r = c.r;
   const int dp = s.dpad;
@@ -1551,12 +1585,20 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
     size_t j = i;
     while (j + 1 < na && s.active[j + 1] <= s.active[j] + c.w) ++j;
     const int a = s.active[i], b = s.active[j];
-    for (int x = a - r; x <= b + r; ++x) ensureColumn(c, s, x, y);
-    float* h = s.hvec.data();
-    std::memcpy(h, s.colsum.data() + static_cast<size_t>(a - r) * dp, sizeof(float) * dp);
-    for (int x = a - r + 1; x <= a + r; ++x) {
-      vecAdd(dp, h, s.colsum.data() + static_cast<size_t>(x) * dp);
+    if (!c.uniform_ranges) runRequests(c, s, y, i, j);
+    // Lanes the run's profiles read: the union of its columns' requests (every column of a
+    // pixel's window holds that pixel's range).
+    int k0 = dp, k1 = -1;
+    for (int x = a - r; x <= b + r; ++x) {
+      ensureColumn(c, s, x, y);
+      k0 = std::min(k0, s.req_k0[x]);
+      k1 = std::max(k1, s.req_k1[x]);
     }
+    const int nk = k1 - k0 + 1;
+    float* h = s.hvec.data();
+    const float* cs0 = s.colsum.data() + k0;
+    std::memcpy(h + k0, cs0 + static_cast<size_t>(a - r) * dp, sizeof(float) * nk);
+    for (int x = a - r + 1; x <= a + r; ++x) vecAdd(nk, h + k0, cs0 + static_cast<size_t>(x) * dp);
     size_t next = i;
     for (int x = a; x <= b; ++x) {
       if (next <= j && s.active[next] == x) {
@@ -1579,8 +1621,8 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
                     &s.best_r[x], &s.second[x]);
       }
       if (x < b) {
-        vecAddSub(dp, h, s.colsum.data() + static_cast<size_t>(x + r + 1) * dp,
-                  s.colsum.data() + static_cast<size_t>(x - r) * dp);
+        vecAddSub(nk, h + k0, cs0 + static_cast<size_t>(x + r + 1) * dp,
+                  cs0 + static_cast<size_t>(x - r) * dp);
       }
     }
     i = j + 1;
