@@ -7,15 +7,19 @@
 
 namespace endo_stereo {
 
-/// Reject (code kCodeRejectEdge, disparity NaN, confidence 0) every pixel accepted with a window
-/// of width w whose window, widened by mp.edge_margin_px, holds accepted disparities more than
-/// mp.edge_disparity_jump_px below its own or more than mp.edge_disparity_jump_above_px above it
-/// (judged on the map before the step: order-independent). @p window_idx holds each accepted
-/// pixel's window index; @p left, @p right the matched 8-bit images (CV_8UC1, unused by the
-/// test as it stands, there for tests that look at the images); @p num_levels the number of window sizes; the remaining Mats are scratch.
+/// Reject (code kCodeRejectEdge, disparity NaN, confidence 0) pixels whose accepting window
+/// straddles a depth edge. A pixel accepted with a window of width w is flagged when its window,
+/// widened by mp.edge_margin_px, holds accepted disparities more than mp.edge_disparity_jump_px
+/// below its own or more than mp.edge_disparity_jump_above_px above it. With
+/// mp.edge_verify_radius_px > 0 a flagged pixel gets a second chance and is kept when every
+/// window of width 2 r + 1 containing it prefers its disparity (ZNCC on @p left / @p right, the
+/// matched 8-bit images, CV_8UC1) to the disparities of the neighbours that flagged it. Judged on
+/// the map before the step (order-independent; output independent of the thread count).
+/// @p window_idx holds each accepted pixel's window index; @p num_levels the number of window
+/// sizes; the remaining Mats are scratch.
 void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& right,
-                          int num_levels, const cv::Mat& window_idx,
-                          MatchResult& out, cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo,
-                          cv::Mat& hi, cv::Mat& reject);
+                          int num_levels, const cv::Mat& window_idx, MatchResult& out,
+                          cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo, cv::Mat& hi,
+                          cv::Mat& reject);
 
 }  // namespace endo_stereo

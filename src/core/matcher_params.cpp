@@ -50,6 +50,11 @@ std::string MatcherParams::validate() const {
         << " must be finite and >= 0 (0 = same as edge_disparity_jump_px)";
   } else if (edge_margin_px < 0 || edge_margin_px > 16) {
     msg << "matcher.edge_margin_px = " << edge_margin_px << " must be in [0, 16]";
+  } else if (edge_verify_radius_px < 0 || edge_verify_radius_px > 6) {
+    msg << "matcher.edge_verify_radius_px = " << edge_verify_radius_px
+        << " must be in [0, 6] (0 = off)";
+  } else if (!(edge_verify_min_ncc >= -1.0 && edge_verify_min_ncc <= 1.0)) {
+    msg << "matcher.edge_verify_min_ncc = " << edge_verify_min_ncc << " must be in [-1, 1]";
   }
   return msg.str();
 }

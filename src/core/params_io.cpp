@@ -182,6 +182,10 @@ const std::vector<Entry>& table() {
     t.push_back(field("matcher", "edge_disparity_jump_above_px", &PP::matcher,
                       &MatcherParams::edge_disparity_jump_above_px));
     t.push_back(field("matcher", "edge_margin_px", &PP::matcher, &MatcherParams::edge_margin_px));
+    t.push_back(field("matcher", "edge_verify_radius_px", &PP::matcher,
+                      &MatcherParams::edge_verify_radius_px));
+    t.push_back(field("matcher", "edge_verify_min_ncc", &PP::matcher,
+                      &MatcherParams::edge_verify_min_ncc));
     // --- filter ----------------------------------------------------------------------------------
     t.push_back(
         field("filter", "remove_outliers", &PP::filter, &PostFilterParams::remove_outliers));

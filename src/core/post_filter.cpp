@@ -4,12 +4,15 @@
 // in which pixels are visited.
 #include <algorithm>
 #include <cmath>
+#include <cstring>
 #include <limits>
+#include <opencv2/core/utility.hpp>
 #include <sstream>
 #include <stdexcept>
 #include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
+#include "simd.hpp"
 
 namespace endo_stereo {
 
@@ -40,6 +43,52 @@ void checkMaps(const cv::Mat& disparity, const cv::Mat& code, const char* fn) {
   }
 }
 
+/// The removal verdicts of one row (rm[x] = 1: remove): agreeing neighbours counted over the
+/// rows nrows[0 .. num_rows) (nrows[centre] is the row itself, s), the pixel itself excluded.
+/// Eight columns at a time with the count kept in a register across all offsets. |n - s| < tol
+/// is written as (n - s < tol) && (s - n < tol): the same truth value (negation is exact, NaN
+/// fails both), without an absolute value.
+ES_KERNEL void outlierRow(const float* const* nrows, int num_rows, int centre, int cols, int half,
+                          float tol, int need, uint8_t* rm) {
+  using namespace simd;
+  const float* s = nrows[centre];
+  auto scalar = [&](int x) {
+    int agree = 0;
+    for (int r = 0; r < num_rows; ++r) {
+      for (int dx = -half; dx <= half; ++dx) {
+        if ((r == centre && dx == 0) || x + dx < 0 || x + dx >= cols) continue;
+        agree += std::fabs(nrows[r][x + dx] - s[x]) < tol ? 1 : 0;
+      }
+    }
+    rm[x] = (s[x] == s[x] && agree < need) ? 1 : 0;
+  };
+  const V8f tv = splat8(tol);
+  // The pixel itself is counted too (0 < tol, and only non-NaN pixels can be removed), so the
+  // count must reach need + 1: no test for the centre offset in the loop.
+  const V8i need_self = {need + 1, need + 1, need + 1, need + 1,
+                         need + 1, need + 1, need + 1, need + 1};
+  int x = 0;
+  for (; x < std::min(half, cols); ++x) scalar(x);
+  for (; x + 16 + half <= cols; x += 16) {
+    const V8f s0 = load8(s + x), s1 = load8(s + x + 8);
+    V8i a0 = {0, 0, 0, 0, 0, 0, 0, 0}, a1 = a0;
+    for (int r = 0; r < num_rows; ++r) {
+      const float* n = nrows[r] + x;
+      for (int dx = -half; dx <= half; ++dx) {
+        const V8f d0 = load8(n + dx) - s0, d1 = load8(n + dx + 8) - s1;
+        a0 -= (d0 < tv) & (-d0 < tv);  // a true lane is -1
+        a1 -= (d1 < tv) & (-d1 < tv);
+      }
+    }
+    const V8i k0 = (a0 >= need_self) | (s0 != s0), k1 = (a1 >= need_self) | (s1 != s1);
+    for (int i = 0; i < 8; ++i) {  // a kept lane is -1: -1 + 1 = 0, a removed one 0 + 1 = 1
+      rm[x + i] = static_cast<uint8_t>(k0[i] + 1);
+      rm[x + 8 + i] = static_cast<uint8_t>(k1[i] + 1);
+    }
+  }
+  for (; x < cols; ++x) scalar(x);
+}
+
 }  // namespace
 
 int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params) {
@@ -50,31 +99,38 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   const int half = params.outlier_window_px / 2;
   const float tol = static_cast<float>(params.outlier_disparity_tol_px);
   // N / window^2 < mu, with N counting the agreeing neighbours (the pixel itself excluded) and the
-  // denominator fixed at window^2 also at the image border, as METHOD.md writes it.
+  // denominator fixed at window^2 also at the image border, as METHOD.md writes it. N is an
+  // integer, so "N < need" is "N < ceil(need)".
   const double need =
       params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;
-  const cv::Mat src = disparity.clone();
-  std::vector<int> agree(cols);
-  int64_t removed = 0;
-  for (int y = 0; y < rows; ++y) {
-    const float* s = src.ptr<float>(y);
-    std::fill(agree.begin(), agree.end(), 0);
-    // One neighbour offset at a time over the whole row: a vectorisable compare-and-count.
-    // NaN (unmatched) never compares below the tolerance, so it never agrees.
-    for (int yy = std::max(0, y - half); yy <= std::min(rows - 1, y + half); ++yy) {
-      const float* n = src.ptr<float>(yy);
-      for (int dx = -half; dx <= half; ++dx) {
-        if (yy == y && dx == 0) continue;
-        const int x0 = std::max(0, -dx), x1 = std::min(cols, cols - dx);
-        int* ag = agree.data();
-        for (int x = x0; x < x1; ++x) ag[x] += std::fabs(n[x + dx] - s[x]) < tol ? 1 : 0;
-      }
+  const int need_int = static_cast<int>(std::ceil(need));
+  // Decided on the input map: first a removal mask from the untouched map (fixed row blocks over
+  // the threads; every verdict reads only the input, so the thread count cannot matter), then the
+  // removals. No copy of the map is needed.
+  cv::Mat remove(rows, cols, CV_8UC1);
+  constexpr int kBlockRows = 16;
+  const int num_blocks = (rows + kBlockRows - 1) / kBlockRows;
+  const cv::Mat& src = disparity;
+  cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+    std::vector<const float*> nrows(2 * half + 1);
+    for (int y = rg.start * kBlockRows; y < std::min(rows, rg.end * kBlockRows); ++y) {
+      // NaN (unmatched) never compares below the tolerance, so it never agrees.
+      const int y0 = std::max(0, y - half), y1 = std::min(rows - 1, y + half);
+      for (int yy = y0; yy <= y1; ++yy) nrows[yy - y0] = src.ptr<float>(yy);
+      outlierRow(nrows.data(), y1 - y0 + 1, y - y0, cols, half, tol, need_int,
+                 remove.ptr<uint8_t>(y));
     }
+  });
+  int64_t removed = 0;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  for (int y = 0; y < rows; ++y) {
+    const uint8_t* rm = remove.ptr<uint8_t>(y);
     float* dst = disparity.ptr<float>(y);
+    uint8_t* cd = code.empty() ? nullptr : code.ptr<uint8_t>(y);
     for (int x = 0; x < cols; ++x) {
-      if (std::isnan(s[x]) || agree[x] >= need) continue;
-      dst[x] = std::numeric_limits<float>::quiet_NaN();
-      if (!code.empty()) code.at<uint8_t>(y, x) = kCodeRejectOutlier;
+      if (!rm[x]) continue;
+      dst[x] = nan;
+      if (cd) cd[x] = kCodeRejectOutlier;
       ++removed;
     }
   }
@@ -87,67 +143,111 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   if (!err.empty()) throw std::invalid_argument("fillSmallHoles: " + err);
   const int rows = disparity.rows, cols = disparity.cols;
   const int max_hole = params.fill_max_hole_px;
-  const cv::Mat src = disparity.clone();
-  auto valid = [&](int y, int x) { return !std::isnan(src.ptr<float>(y)[x]); };
   // A hole pixel is an invalid pixel inside a horizontal or a vertical run of at most max_hole
   // invalid pixels bounded by valid pixels at both ends. Runs touching the image border are not
-  // bounded and are left alone, as is anything wider: later frames fill those.
+  // bounded and are left alone, as is anything wider: later frames fill those. Both runs are found
+  // in one row-major sweep: horizontal runs within the row, vertical runs through a per-column
+  // state (where the column's current invalid run started), so memory is walked contiguously.
   cv::Mat hole(rows, cols, CV_8UC1, cv::Scalar(0));
+  std::vector<int32_t> run_len(cols, 0);    // length of the column's current invalid run so far
+  std::vector<int32_t> close_len(cols, 0);  // > 0: a bounded vertical run ends above this row
+  std::vector<uint8_t> inv(cols + 8, 0);    // 1 = invalid (NaN); padded for 8-byte reads
+  auto anyByte = [](const uint8_t* p) {
+    uint64_t w;
+    std::memcpy(&w, p, 8);
+    return w != 0;
+  };
   for (int y = 0; y < rows; ++y) {
+    const float* d = disparity.ptr<float>(y);
+    uint8_t* h = hole.ptr<uint8_t>(y);
+    uint8_t* iv = inv.data();
+    int32_t* rl = run_len.data();
+    int32_t* cl = close_len.data();
+    // Branch-free, vectorisable: validity, and the per-column run bookkeeping. A run closes at
+    // this row when the pixel is valid after 1..max_hole invalid ones that did not start at row 0.
+    int32_t any_close = 0;
+    for (int c = 0; c < cols; ++c) {
+      const int32_t invalid = d[c] != d[c];
+      const int32_t len = rl[c];
+      iv[c] = static_cast<uint8_t>(invalid);
+      const int32_t closing = (!invalid && len > 0 && len <= max_hole && len < y) ? len : 0;
+      cl[c] = closing;
+      any_close |= closing;
+      rl[c] = invalid ? len + 1 : 0;
+    }
+    // Horizontal runs within the row, skipping valid stretches eight pixels at a time.
     int x = 0;
     while (x < cols) {
-      if (valid(y, x)) {
+      if (x + 8 <= cols && !anyByte(iv + x)) {
+        x += 8;
+        continue;
+      }
+      if (!iv[x]) {
         ++x;
         continue;
       }
       int end = x;
-      while (end < cols && !valid(y, end)) ++end;
+      while (end < cols && iv[end]) ++end;
       if (x > 0 && end < cols && end - x <= max_hole) {
-        for (int i = x; i < end; ++i) hole.at<uint8_t>(y, i) = 1;
+        for (int i = x; i < end; ++i) h[i] = 1;
       }
       x = end;
     }
-  }
-  for (int x = 0; x < cols; ++x) {
-    int y = 0;
-    while (y < rows) {
-      if (valid(y, x)) {
-        ++y;
-        continue;
-      }
-      int end = y;
-      while (end < rows && !valid(end, x)) ++end;
-      if (y > 0 && end < rows && end - y <= max_hole) {
-        for (int i = y; i < end; ++i) hole.at<uint8_t>(i, x) = 1;
-      }
-      y = end;
+    // Vertical runs that closed at this row (rare).
+    for (int c = 0; c < cols && any_close; ++c) {
+      for (int i = y - cl[c]; i < y; ++i) hole.ptr<uint8_t>(i)[c] = 1;
     }
   }
   // The fill value: the median of the valid disparities among the 8 neighbours. With an even count
   // the lower of the two middle values is taken, so the fill is always a disparity that was
   // measured (at a depth edge the hole takes one side's value, never an invented one in between).
-  int64_t filled = 0;
-  std::vector<float> vals;
-  vals.reserve(8);
+  // Values are taken from the input map (holes are invalid there) and written after all are
+  // found, so no copy of the map is needed and the order of the pixels does not matter.
+  struct Fill {
+    int y, x;
+    float v;
+  };
+  std::vector<Fill> fills;
+  fills.reserve(1024);
   for (int y = 0; y < rows; ++y) {
+    const uint8_t* h = hole.ptr<uint8_t>(y);
     for (int x = 0; x < cols; ++x) {
-      if (!hole.at<uint8_t>(y, x)) continue;
-      vals.clear();
+      if (x + 8 <= cols && !anyByte(h + x)) {
+        x += 7;
+        continue;
+      }
+      if (!h[x]) continue;
+      // The valid neighbours, padded with +inf to eight values and sorted by a fixed 19-comparator
+      // network (branch-free); the padding sorts last, so index (n - 1) / 2 is the lower median of
+      // the n valid values.
+      const float inf = std::numeric_limits<float>::infinity();
+      float v[8] = {inf, inf, inf, inf, inf, inf, inf, inf};
+      int n = 0;
       for (int yy = std::max(0, y - 1); yy <= std::min(rows - 1, y + 1); ++yy) {
+        const float* d = disparity.ptr<float>(yy);
         for (int xx = std::max(0, x - 1); xx <= std::min(cols - 1, x + 1); ++xx) {
-          const float v = src.at<float>(yy, xx);
-          if (!std::isnan(v)) vals.push_back(v);
+          if (yy == y && xx == x) continue;  // the hole itself is invalid
+          const float e = d[xx];
+          if (e == e) v[n++] = e;
         }
       }
-      if (vals.empty()) continue;  // cannot happen for a bounded run; kept for safety
-      const size_t mid = (vals.size() - 1) / 2;
-      std::nth_element(vals.begin(), vals.begin() + mid, vals.end());
-      disparity.at<float>(y, x) = vals[mid];
-      if (!code.empty()) code.at<uint8_t>(y, x) = kCodeFilled;
-      ++filled;
+      if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
+      static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6},
+                                          {3, 7}, {0, 1}, {2, 3}, {4, 5}, {6, 7}, {2, 4}, {3, 5},
+                                          {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
+      for (const auto& c : kNet) {
+        const float a = v[c[0]], b = v[c[1]];
+        v[c[0]] = std::min(a, b);
+        v[c[1]] = std::max(a, b);
+      }
+      fills.push_back(Fill{y, x, v[(n - 1) / 2]});
     }
   }
-  return filled;
+  for (const Fill& f : fills) {
+    disparity.ptr<float>(f.y)[f.x] = f.v;
+    if (!code.empty()) code.ptr<uint8_t>(f.y)[f.x] = kCodeFilled;
+  }
+  return static_cast<int64_t>(fills.size());
 }
 
 }  // namespace endo_stereo

@@ -69,6 +69,10 @@ std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::s
         m.edge_disparity_jump_above_px = std::stod(v);
       else if (name == "edge_margin_px")
         m.edge_margin_px = std::stoi(v);
+      else if (name == "edge_verify_radius_px")
+        m.edge_verify_radius_px = std::stoi(v);
+      else if (name == "edge_verify_min_ncc")
+        m.edge_verify_min_ncc = std::stod(v);
       else
         return "unknown key " + key;
     } else if (sec == "filter") {

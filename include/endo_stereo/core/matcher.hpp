@@ -86,7 +86,19 @@ struct MatcherParams {
   /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
   double edge_disparity_jump_above_px = 6.0;
   /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16].
-  int edge_margin_px = 2;
+  int edge_margin_px = 3;
+  /// Second chance for pixels the edge test flags (ours; 0 = off: every flagged pixel is
+  /// rejected). Competitors are the disparities measured on the other side of the jump (those of
+  /// the neighbours that triggered the test, rounded, +-1 px). A flagged pixel is kept when EVERY
+  /// square window of width 2 r + 1 that contains it ((2 r + 1)^2 windows, all inside the images)
+  /// gives its own disparity (the better of the integers around it) a ZNCC of at least
+  /// edge_verify_min_ncc and a higher ZNCC than each competitor. Some of those windows lie wholly
+  /// on the pixel's own side of the depth edge: there a fattened pixel (the farther surface
+  /// carrying the nearer one's disparity) loses to its true disparity, while a true foreground
+  /// pixel next to the edge keeps winning. Radius r in px, [0, 6].
+  int edge_verify_radius_px = 4;
+  /// Least ZNCC of the pixel's own disparity in each verifying window, [-1, 1].
+  double edge_verify_min_ncc = 0.5;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;
