@@ -1770,9 +1770,21 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     // touch (within the disparity span of an open pixel), vectorised; structure values lazily.
     // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
     if (c.uniform_ranges) {
-      const int omin = open.front(), omax = open.back();
-      const int span = (c.dmax - c.dmin) + std::abs(c.dmin) + std::abs(c.dmax) + r;
-      computeRowMaps(c, s, y, false, std::max(r, omin - span), std::min(W - 1 - r, omax + span));
+      // Open pixel x reads right statistics at x - d and, through the right-to-left profile of
+      // x - d, left statistics at x - d + d' (d, d' in the range): columns x + lo_off .. x + hi_off.
+      // Merged over the open pixels, so gaps between clusters of open pixels are skipped.
+      const int lo_off = std::min({0, -c.dmax, c.dmin - c.dmax});
+      const int hi_off = std::max({0, -c.dmin, c.dmax - c.dmin});
+      int ia = -1, ib = -2;
+      for (const int x : open) {
+        const int a = x + lo_off, b = x + hi_off;
+        if (a > ib + 1) {
+          if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
+          ia = a;
+        }
+        ib = std::max(ib, b);
+      }
+      if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
     }
   }
   // Active = open, effective range of at least 3 values (an interior maximum needs two
