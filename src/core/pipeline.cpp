@@ -69,6 +69,7 @@ struct Pipeline::Impl {
   StereoCalibration calibration;  // as given, before scaling for pre-processing
   bool has_calibration = false;
   int64_t frames_done = 0;
+  bool color_wanted = true;  // setColorOutput()
   // Scratch reused between frames.
   cv::Mat left_gray, right_gray, left_bgr;
 };
@@ -117,6 +118,10 @@ void Pipeline::reset() {
   impl_->temporal.reset();
 }
 
+void Pipeline::setColorOutput(bool wanted) { impl_->color_wanted = wanted; }
+
+void Pipeline::setAsyncRectificationQuality(bool async) { impl_->rectifier.setAsyncQuality(async); }
+
 const TemporalTracker& Pipeline::temporal() const { return impl_->temporal; }
 const StereoRectifier& Pipeline::rectifier() const { return impl_->rectifier; }
 
@@ -146,8 +151,11 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     // --- pre-processing: gray for matching, colour (left only) for the cloud.
     auto t = Clock::now();
     std::string err;
+    // Colour only where something uses it: it costs a conversion and a 3-channel remap.
+    const bool color = params_.output.point_cloud || impl_->color_wanted;
+    if (!color) impl_->left_bgr.release();
     if (!preprocessImage(input.left, left_enc, params_.preprocess, impl_->left_gray,
-                         &impl_->left_bgr, &err)) {
+                         color ? &impl_->left_bgr : nullptr, &err)) {
       setError(error, "left image: " + err);
       return false;
     }

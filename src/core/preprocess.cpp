@@ -81,7 +81,8 @@ const char* kSupported = "mono8, mono16, bgr8, rgb8, bgra8, rgba8, yuv422 (UYVY)
 }
 
 bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, size_t step,
-                  const std::string& encoding, bool big_endian, cv::Mat& out, std::string* error) {
+                  const std::string& encoding, bool big_endian, cv::Mat& out, std::string* error,
+                  bool copy) {
   const int type = encodingToCvType(encoding);
   if (type < 0) {
     return fail(error, "unsupported encoding '" + encoding + "' (supported: " + kSupported + ")");
@@ -108,8 +109,14 @@ bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, 
         << " x height " << height << " needs " << step * size_t(height);
     return fail(error, msg.str());
   }
-  cv::Mat(height, width, type, const_cast<uint8_t*>(data), step).copyTo(out);
-  if (big_endian && CV_ELEM_SIZE1(type) == 2) {
+  const cv::Mat view(height, width, type, const_cast<uint8_t*>(data), step);
+  const bool swap = big_endian && CV_ELEM_SIZE1(type) == 2;
+  if (!copy && !swap) {
+    out = view;
+    return true;
+  }
+  view.copyTo(out);
+  if (swap) {
     for (int y = 0; y < out.rows; ++y) {
       uint16_t* p = out.ptr<uint16_t>(y);
       for (int x = 0; x < out.cols * out.channels(); ++x)

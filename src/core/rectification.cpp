@@ -1,7 +1,9 @@
 #include "endo_stereo/core/rectification.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
+#include <future>
 #include <limits>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/imgproc.hpp>
@@ -162,6 +164,12 @@ struct StereoRectifier::Impl {
   cv::Size maps_in_size;  // input size the maps were built for
   cv::Size out_size;
   cv::Mat map_l1, map_l2, map_r1, map_r2;
+  // The per-frame remap tables: map_* converted once to OpenCV's fixed-point form (CV_16SC2
+  // integer part + CV_16UC1 1/32-px interpolation index). cv::remap with INTER_LINEAR converts
+  // float maps to exactly this form block by block on every call (same rounding), so remapping
+  // with these gives identical images at a fraction of the cost. map_* (float) stay for
+  // rectifyImage(), whose caller may ask for another interpolation.
+  cv::Mat fast_l1, fast_l2, fast_r1, fast_r2;
   cv::Matx33d K_l, K_r, R_l, R_r;  // effective (binned) raw intrinsics, rectification rotations
   cv::Matx34d P_l, P_r;            // effective rectified projections
   cv::Mat D_l, D_r;
@@ -259,6 +267,7 @@ struct StereoRectifier::Impl {
         cv::initUndistortRectifyMap(cv::Mat(K_r), D_r, cv::Mat(R_r), cv::Mat(P_r), out_size,
                                     map_type, map_r1, map_r2);
       }
+      convertFastMaps();
     } catch (const std::exception& ex) {
       return fail(error, std::string("rectification maps could not be built: ") + ex.what());
     }
@@ -443,12 +452,14 @@ struct StereoRectifier::Impl {
                                   map_l2);
       cv::initUndistortRectifyMap(eye, cv::Mat(), cv::Mat(H_r), eye, size, map_type, map_r1,
                                   map_r2);
+      convertFastMaps();
       out_size = size;
       homographyGeometry(size);
     } else {
       polar = pol;
       detail::polarMaps(polar, true, map_l1, map_l2);
       detail::polarMaps(polar, false, map_r1, map_r2);
+      convertFastMaps();
       out_size = cv::Size(polar.width, int(polar.theta.size()));
       RectifiedGeometry g;
       g.width = out_size.width;
@@ -532,15 +543,68 @@ struct StereoRectifier::Impl {
     return false;
   }
 
+  // Call after every change of map_*: fills fast_* (a plain reference when map_* are
+  // fixed-point already).
+  void convertFastMaps() {
+    auto convert = [](const cv::Mat& m1, const cv::Mat& m2, cv::Mat& f1, cv::Mat& f2) {
+      if (m1.type() == CV_16SC2) {
+        f1 = m1;
+        f2 = m2;
+      } else {
+        cv::convertMaps(m1, m2, f1, f2, CV_16SC2, false);
+      }
+    };
+    convert(map_l1, map_l2, fast_l1, fast_l2);
+    convert(map_r1, map_r2, fast_r1, fast_r2);
+  }
+
   void remapPair(const cv::Mat& lg, const cv::Mat& rg, const cv::Mat& lc, cv::Mat& olg,
                  cv::Mat& org, cv::Mat& olc) const {
-    cv::remap(lg, olg, map_l1, map_l2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
-    cv::remap(rg, org, map_r1, map_r2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::remap(lg, olg, fast_l1, fast_l2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+    cv::remap(rg, org, fast_r1, fast_r2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     if (lc.empty()) {
       olc.release();
     } else {
-      cv::remap(lc, olc, map_l1, map_l2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
+      cv::remap(lc, olc, fast_l1, fast_l2, cv::INTER_LINEAR, cv::BORDER_CONSTANT);
     }
+  }
+
+  // setAsyncQuality(): one measurement at a time on a background thread.
+  bool async_quality = false;
+  std::future<RectificationQuality> pending_quality;
+  int64_t pending_frame = 0;
+
+  // Calibrated / pass-through: measure the rectified pair now, or start a background measurement.
+  void measureQuality(const cv::Mat& left_rect, const cv::Mat& right_rect) {
+    if (!async_quality) {
+      recordQuality(measureRowAlignment(left_rect, right_rect, params.quality_max_features,
+                                        params.ratio_test, params.ransac_threshold_px));
+      return;
+    }
+    if (pending_quality.valid()) return;  // the previous one still runs: skip this one
+    pending_frame = frame_index;
+    pending_quality = std::async(
+        std::launch::async, [l = left_rect.clone(), r = right_rect.clone(),
+                             n = params.quality_max_features, ratio = params.ratio_test,
+                             threshold = params.ransac_threshold_px] {
+          return measureRowAlignment(l, r, n, ratio, threshold);
+        });
+  }
+
+  // Records a finished background measurement (wait: block until it is done; discard: drop it,
+  // as after a change of calibration it describes the old one).
+  void collectQuality(bool wait, bool discard = false) {
+    if (!pending_quality.valid()) return;
+    if (!wait &&
+        pending_quality.wait_for(std::chrono::seconds(0)) != std::future_status::ready) {
+      return;
+    }
+    const RectificationQuality q = pending_quality.get();
+    if (discard) return;
+    const int64_t now = frame_index;
+    frame_index = pending_frame;  // the frame that was measured
+    recordQuality(q);
+    frame_index = now;
   }
 
   void recordQuality(RectificationQuality q) {
@@ -680,6 +744,7 @@ std::string StereoRectifier::setCalibration(const StereoCalibration& calibration
   if (!e.empty()) return e;
   Impl& s = *impl_;
   if (s.has_calib && s.calib == calibration) return {};
+  s.collectQuality(true, true);  // a measurement of the old calibration is not reported
   const StereoCalibration old = s.calib;
   const bool had = s.has_calib;
   s.calib = calibration;
@@ -724,6 +789,7 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
   }
   const cv::Size in = left_gray.size();
   bool ok = true;
+  s.collectQuality(false);
   try {
     switch (s.params.mode) {
       case RectifyMode::kPassThrough: {
@@ -735,11 +801,7 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
         } else {
           left_bgr.copyTo(left_rect_bgr);
         }
-        if (s.measureNow()) {
-          s.recordQuality(measureRowAlignment(left_rect_gray, right_rect_gray,
-                                              s.params.quality_max_features, s.params.ratio_test,
-                                              s.params.ransac_threshold_px));
-        }
+        if (s.measureNow()) s.measureQuality(left_rect_gray, right_rect_gray);
         break;
       }
       case RectifyMode::kCalibrated: {
@@ -761,11 +823,7 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
         }
         s.remapPair(left_gray, right_gray, left_bgr, left_rect_gray, right_rect_gray,
                     left_rect_bgr);
-        if (s.measureNow()) {
-          s.recordQuality(measureRowAlignment(left_rect_gray, right_rect_gray,
-                                              s.params.quality_max_features, s.params.ratio_test,
-                                              s.params.ransac_threshold_px));
-        }
+        if (s.measureNow()) s.measureQuality(left_rect_gray, right_rect_gray);
         break;
       }
       case RectifyMode::kUncalibrated:
@@ -830,7 +888,13 @@ bool StereoRectifier::fundamentalMatrix(cv::Matx33d* F) const {
   return true;
 }
 
+void StereoRectifier::setAsyncQuality(bool async) {
+  impl_->collectQuality(true);
+  impl_->async_quality = async;
+}
+
 void StereoRectifier::reset() {
+  impl_->collectQuality(true, true);
   impl_->dropUncalibrated();
   if (impl_->active == "homography" || impl_->active == "polar") impl_->active.clear();
   impl_->frame_index = 0;

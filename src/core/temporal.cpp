@@ -2,11 +2,15 @@
 #include "endo_stereo/core/temporal.hpp"
 
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <cstring>
+#include <opencv2/core/hal/intrin.hpp>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <stdexcept>
-
-#include <opencv2/imgproc.hpp>
+#include <vector>
 
 namespace endo_stereo {
 
@@ -26,7 +30,73 @@ constexpr float kNoPriorHi = -1e9f;
 // Block size of the coarse min / max grid behind the edge zone, px.
 constexpr int kEdgeBlock = 4;
 
-inline uint16_t saturatingIncrement(uint16_t v) { return v == kAgeNone ? v : uint16_t(v + 1); }
+inline uint16_t saturatingIncrement(uint16_t v) { return uint16_t(v + (v != kAgeNone)); }
+
+// isfinite as one ordered compare: false for NaN (unordered) and +-inf. Written this way so the
+// row loops below vectorise (std::isfinite is a library call at -O2/-O3 without fast-math).
+inline bool finite(float v) { return std::fabs(v) <= std::numeric_limits<float>::max(); }
+
+// floor / ceil of a float to int without a libm call or a branch: truncate, then step once
+// towards -inf / +inf when the truncation went the other way. Exact for |x| < 2^31 (floats of
+// magnitude >= 2^23 are integers already); the priors and sentinels stay far inside that.
+#if CV_SIMD128
+// Validity (finite) of in[0..7] as one 16-bit mask per pixel (all ones = finite), and per half as
+// 32-bit masks for float selects.
+inline cv::v_uint16x8 finiteMask8(const float* in, cv::v_float32x4* in0, cv::v_float32x4* in1,
+                                  cv::v_float32x4* m0, cv::v_float32x4* m1) {
+  const cv::v_float32x4 big = cv::v_setall_f32(std::numeric_limits<float>::max());
+  *in0 = cv::v_load(in);
+  *in1 = cv::v_load(in + 4);
+  *m0 = cv::v_abs(*in0) <= big;
+  *m1 = cv::v_abs(*in1) <= big;
+  return cv::v_reinterpret_as_u16(
+      cv::v_pack(cv::v_reinterpret_as_s32(*m0), cv::v_reinterpret_as_s32(*m1)));
+}
+
+// A 16-bit lane mask widened to two 32-bit float masks (sign extension keeps all ones).
+inline void widenMask(const cv::v_uint16x8& m, cv::v_float32x4* m0, cv::v_float32x4* m1) {
+  cv::v_int32x4 a, b;
+  cv::v_expand(cv::v_reinterpret_as_s16(m), a, b);
+  *m0 = cv::v_reinterpret_as_f32(a);
+  *m1 = cv::v_reinterpret_as_f32(b);
+}
+
+inline int countMask(const cv::v_uint16x8& m) {
+  cv::v_uint32x4 a, b;
+  cv::v_expand(m & cv::v_setall_u16(1), a, b);
+  return int(cv::v_reduce_sum(a + b));
+}
+#endif
+
+// Rows are processed in fixed stripes (a multiple of kEdgeBlock rows) that cv::parallel_for_ may
+// run on any number of threads. Per-stripe counters are summed in stripe order afterwards, and
+// every pixel's output depends only on its inputs, so results do not depend on the thread count.
+constexpr int kStripeRows = 32;
+
+template <size_t N, typename Body>
+std::array<int64_t, N> forRowStripes(int rows, const Body& body) {
+  const int stripes = (rows + kStripeRows - 1) / kStripeRows;
+  std::vector<std::array<int64_t, N>> counts(size_t(stripes), std::array<int64_t, N>{});
+  cv::parallel_for_(cv::Range(0, stripes), [&](const cv::Range& range) {
+    for (int s = range.start; s < range.end; ++s) {
+      body(s * kStripeRows, std::min(rows, (s + 1) * kStripeRows), counts[size_t(s)]);
+    }
+  });
+  std::array<int64_t, N> total{};
+  for (const auto& c : counts) {
+    for (size_t i = 0; i < N; ++i) total[i] += c[i];
+  }
+  return total;
+}
+
+inline int floorToInt(float x) {
+  const int t = int(x);
+  return t - int(float(t) > x);
+}
+inline int ceilToInt(float x) {
+  const int t = int(x);
+  return t + int(float(t) < x);
+}
 
 void checkDisparity(const cv::Mat& disparity, const char* who) {
   if (disparity.empty() || disparity.type() != CV_32FC1) {
@@ -128,35 +198,38 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     age_.setTo(kAgeNone);
     failures_ = cv::Mat::zeros(size, CV_8UC1);
   }
-  narrowed_.create(size, CV_8UC1);
-  narrowed_.setTo(0);
+  narrowed_.create(size, CV_8UC1);  // every pixel written below
   lo_f_.create(size, CV_32FC1);
   hi_f_.create(size, CV_32FC1);
 
   const int max_failures = params_.max_prior_failures;
   const int max_age = params_.max_prior_age_frames;
-  int64_t usable = 0;
-  for (int y = 0; y < size.height; ++y) {
-    const float* d = last_disparity_.ptr<float>(y);
-    const uint16_t* age = age_.ptr<uint16_t>(y);
-    const uint8_t* fail = failures_.ptr<uint8_t>(y);
-    float* lo = lo_f_.ptr<float>(y);
-    float* hi = hi_f_.ptr<float>(y);
-    for (int x = 0; x < size.width; ++x) {
-      const bool fresh = std::isfinite(d[x]) && age[x] < max_age;
-      if (fresh && fail[x] < max_failures) {
-        lo[x] = d[x];
-        hi[x] = d[x];
-        ++usable;
-      } else {
-        lo[x] = kNoPriorLo;
-        hi[x] = kNoPriorHi;
-        // A pixel with a fresh prior that was dropped for failing: it falls back.
-        if (fresh) ++stats_.fallback_pixels;
-      }
-    }
-  }
+  const std::array<int64_t, 2> pass1 =
+      forRowStripes<2>(size.height, [&](int y_begin, int y_end, std::array<int64_t, 2>& c) {
+        for (int y = y_begin; y < y_end; ++y) {
+          const float* d = last_disparity_.ptr<float>(y);
+          const uint16_t* age = age_.ptr<uint16_t>(y);
+          const uint8_t* fail = failures_.ptr<uint8_t>(y);
+          float* lo = lo_f_.ptr<float>(y);
+          float* hi = hi_f_.ptr<float>(y);
+          int row_usable = 0, row_fresh = 0;
+          for (int x = 0; x < size.width; ++x) {
+            const bool fresh = finite(d[x]) & (int(age[x]) < max_age);
+            const bool use = fresh & (int(fail[x]) < max_failures);
+            lo[x] = use ? d[x] : kNoPriorLo;
+            hi[x] = use ? d[x] : kNoPriorHi;
+            row_usable += use;
+            row_fresh += fresh;
+          }
+          c[0] += row_usable;
+          // A pixel with a fresh prior that was dropped for failing: it falls back.
+          c[1] += row_fresh - row_usable;
+        }
+      });
+  const int64_t usable = pass1[0];
+  stats_.fallback_pixels = pass1[1];
   if (usable == 0) {
+    narrowed_.setTo(0);
     range.lo.release();
     range.hi.release();
     stats_.full_range_pixels = int64_t(size.area());
@@ -175,34 +248,56 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
                           (size.height + kEdgeBlock - 1) / kEdgeBlock);
     lo_e_.create(blocks, CV_32FC1);
     hi_e_.create(blocks, CV_32FC1);
-    lo_e_.setTo(kNoPriorLo);
-    hi_e_.setTo(kNoPriorHi);
-    for (int y = 0; y < size.height; ++y) {
-      const float* lo = lo_f_.ptr<float>(y);
-      const float* hi = hi_f_.ptr<float>(y);
-      float* blo = lo_e_.ptr<float>(y / kEdgeBlock);
-      float* bhi = hi_e_.ptr<float>(y / kEdgeBlock);
-      for (int x = 0; x < size.width; ++x) {
-        blo[x / kEdgeBlock] = std::min(blo[x / kEdgeBlock], lo[x]);
-        bhi[x / kEdgeBlock] = std::max(bhi[x / kEdgeBlock], hi[x]);
+    // Vertical min / max over the block's rows into one row, then horizontal over the columns.
+    col_lo_.resize(size.width);
+    col_hi_.resize(size.width);
+    for (int by = 0; by < blocks.height; ++by) {
+      const int y0 = by * kEdgeBlock, y1 = std::min(size.height, y0 + kEdgeBlock);
+      float* clo = col_lo_.data();
+      float* chi = col_hi_.data();
+      std::copy_n(lo_f_.ptr<float>(y0), size.width, clo);
+      std::copy_n(hi_f_.ptr<float>(y0), size.width, chi);
+      for (int y = y0 + 1; y < y1; ++y) {
+        const float* lo = lo_f_.ptr<float>(y);
+        const float* hi = hi_f_.ptr<float>(y);
+        for (int x = 0; x < size.width; ++x) {
+          clo[x] = std::min(clo[x], lo[x]);
+          chi[x] = std::max(chi[x], hi[x]);
+        }
+      }
+      float* blo = lo_e_.ptr<float>(by);
+      float* bhi = hi_e_.ptr<float>(by);
+      for (int bx = 0; bx < blocks.width; ++bx) {
+        const int x0 = bx * kEdgeBlock, x1 = std::min(size.width, x0 + kEdgeBlock);
+        float mn = clo[x0], mx = chi[x0];
+        for (int x = x0 + 1; x < x1; ++x) {
+          mn = std::min(mn, clo[x]);
+          mx = std::max(mx, chi[x]);
+        }
+        blo[bx] = mn;
+        bhi[bx] = mx;
       }
     }
     const int eb = (e + kEdgeBlock - 1) / kEdgeBlock;
-    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * eb + 1, 2 * eb + 1));
+    const cv::Mat kernel =
+        cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * eb + 1, 2 * eb + 1));
     cv::erode(lo_e_, lo_e_, kernel);
     cv::dilate(hi_e_, hi_e_, kernel);
   }
   const int k = params_.prior_neighbourhood_px;
   if (k > 0) {
-    const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * k + 1, 2 * k + 1));
+    const cv::Mat kernel =
+        cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * k + 1, 2 * k + 1));
     cv::erode(lo_f_, lo_f_, kernel);
     cv::dilate(hi_f_, hi_f_, kernel);
   }
   const float edge_jump = 2.0f * float(params_.prior_radius_px);
   const bool highlights = params_.highlight_gray > 0 && !left_gray.empty();
+  if (!highlights) zero_row_.assign(size.width, 0);
   if (highlights) {
     if (left_gray.type() != CV_8UC1 || left_gray.size() != size) {
-      throw std::invalid_argument("TemporalPrior::buildRange: left_gray must be CV_8UC1 of the range size");
+      throw std::invalid_argument(
+          "TemporalPrior::buildRange: left_gray must be CV_8UC1 of the range size");
     }
     cv::compare(left_gray, params_.highlight_gray, bright_, cv::CMP_GE);
     const int m = params_.highlight_margin_px;
@@ -217,50 +312,133 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
   const float r = float(params_.prior_radius_px);
   const int period = params_.refresh_period_frames;
   const int refresh_phase = period > 0 ? int(frame_count_ % period) : -1;
-  int64_t width_sum = 0;
-  for (int y = 0; y < size.height; ++y) {
-    const bool refresh = period > 0 && (y / kRefreshStripeRows) % period == refresh_phase;
-    const float* lo_f = lo_f_.ptr<float>(y);
-    const float* hi_f = hi_f_.ptr<float>(y);
-    const float* lo_e = edge_zone ? lo_e_.ptr<float>(y / kEdgeBlock) : nullptr;
-    const float* hi_e = edge_zone ? hi_e_.ptr<float>(y / kEdgeBlock) : nullptr;
-    const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : nullptr;
-    int16_t* lo = range.lo.ptr<int16_t>(y);
-    int16_t* hi = range.hi.ptr<int16_t>(y);
-    uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
-    for (int x = 0; x < size.width; ++x) {
-      int a = min_disparity, b = max_disparity;
-      if (refresh) {
-        ++stats_.refresh_pixels;
-      } else if (bright && bright[x]) {
-        ++stats_.highlight_pixels;
-      } else if (lo_f[x] < 0.5f * kNoPriorLo) {
-        float lo_d = lo_f[x], hi_d = hi_f[x];
-        // Near a depth edge in the priors, the span of both sides (the edge may have moved).
-        if (edge_zone && hi_e[x / kEdgeBlock] - lo_e[x / kEdgeBlock] > edge_jump) {
-          lo_d = lo_e[x / kEdgeBlock];
-          hi_d = hi_e[x / kEdgeBlock];
-          ++stats_.edge_zone_pixels;
+  enum { kRefresh, kFull, kBright, kEdge, kNarrowed, kWidth, kCounters };
+  const std::array<int64_t, kCounters> counts = forRowStripes<kCounters>(
+      size.height, [&](int y_begin, int y_end, std::array<int64_t, kCounters>& c) {
+        // The block grid expanded to full columns once per block row (the rows below read it as an
+        // ordinary row, which keeps the pixel loop free of divisions and gathers).
+        std::vector<float> row_lo_e(edge_zone ? size.width : 0),
+            row_hi_e(edge_zone ? size.width : 0);
+        int expanded_block_row = -1;
+        for (int y = y_begin; y < y_end; ++y) {
+          int16_t* lo = range.lo.ptr<int16_t>(y);
+          int16_t* hi = range.hi.ptr<int16_t>(y);
+          uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
+          const bool refresh = period > 0 && (y / kRefreshStripeRows) % period == refresh_phase;
+          if (refresh) {
+            std::fill_n(lo, size.width, int16_t(min_disparity));
+            std::fill_n(hi, size.width, int16_t(max_disparity));
+            std::fill_n(narrowed, size.width, uint8_t(0));
+            c[kRefresh] += size.width;
+            c[kFull] += size.width;
+            continue;
+          }
+          const float* lo_f = lo_f_.ptr<float>(y);
+          const float* hi_f = hi_f_.ptr<float>(y);
+          // Without an edge zone jump is +inf: the edge test below is false everywhere.
+          const float* lo_e = lo_f;
+          const float* hi_e = hi_f;
+          float jump = std::numeric_limits<float>::infinity();
+          if (edge_zone) {
+            if (y / kEdgeBlock != expanded_block_row) {
+              expanded_block_row = y / kEdgeBlock;
+              const float* blo = lo_e_.ptr<float>(expanded_block_row);
+              const float* bhi = hi_e_.ptr<float>(expanded_block_row);
+              for (int x = 0; x < size.width; ++x) {
+                row_lo_e[x] = blo[x / kEdgeBlock];
+                row_hi_e[x] = bhi[x / kEdgeBlock];
+              }
+            }
+            lo_e = row_lo_e.data();
+            hi_e = row_hi_e.data();
+            jump = edge_jump;
+          }
+          const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : zero_row_.data();
+          int row_bright = 0, row_edge = 0, row_narrowed = 0;
+          int64_t row_width = 0;
+          int x = 0;
+#if CV_SIMD128
+          {
+            // Four pixels at a time, the same arithmetic as the scalar loop below (v_floor / v_ceil
+            // are exact for these magnitudes); the compiler does not vectorise the mixed-width loop
+            // itself.
+            const cv::v_float32x4 v_r = cv::v_setall_f32(r);
+            const cv::v_float32x4 v_none = cv::v_setall_f32(0.5f * kNoPriorLo);
+            const cv::v_float32x4 v_jump = cv::v_setall_f32(jump);
+            const cv::v_int32x4 v_min = cv::v_setall_s32(min_disparity);
+            const cv::v_int32x4 v_max = cv::v_setall_s32(max_disparity);
+            const cv::v_int32x4 v_one = cv::v_setall_s32(1);
+            const cv::v_int32x4 v_zero = cv::v_setzero_s32();
+            cv::v_int32x4 n_bright = v_zero, n_edge = v_zero, n_narrowed = v_zero, n_width = v_zero;
+            for (; x <= size.width - 4; x += 4) {
+              const cv::v_float32x4 lf = cv::v_load(lo_f + x), hf = cv::v_load(hi_f + x);
+              const cv::v_float32x4 le = cv::v_load(lo_e + x), he = cv::v_load(hi_e + x);
+              const cv::v_int32x4 lit =
+                  cv::v_reinterpret_as_s32(cv::v_load_expand_q(bright + x)) != v_zero;
+              const cv::v_int32x4 prior = cv::v_reinterpret_as_s32(lf < v_none) & ~lit;
+              const cv::v_int32x4 edge = prior & cv::v_reinterpret_as_s32((he - le) > v_jump);
+              const cv::v_float32x4 edge_f = cv::v_reinterpret_as_f32(edge);
+              const cv::v_float32x4 lo_d = cv::v_select(edge_f, le, lf);
+              const cv::v_float32x4 hi_d = cv::v_select(edge_f, he, hf);
+              cv::v_int32x4 a = cv::v_max(v_min, cv::v_floor(lo_d - v_r));
+              cv::v_int32x4 b = cv::v_min(v_max, cv::v_ceil(hi_d + v_r));
+              const cv::v_int32x4 full = ~prior | (a > b);
+              a = cv::v_select(full, v_min, a);
+              b = cv::v_select(full, v_max, b);
+              const cv::v_int32x4 nar = (a > v_min) | (b < v_max);
+              cv::v_store_low(lo + x, cv::v_pack(a, a));
+              cv::v_store_low(hi + x, cv::v_pack(b, b));
+              const cv::v_int16x8 nar16 = cv::v_pack(nar & v_one, nar & v_one);
+              const unsigned nar8 = cv::v_reinterpret_as_u32(cv::v_pack_u(nar16, nar16)).get0();
+              std::memcpy(narrowed + x, &nar8, 4);
+              n_bright -= lit;
+              n_edge -= edge;
+              n_narrowed -= nar;
+              n_width += (b - a + v_one) & nar;
+            }
+            row_bright += cv::v_reduce_sum(n_bright);
+            row_edge += cv::v_reduce_sum(n_edge);
+            row_narrowed += cv::v_reduce_sum(n_narrowed);
+            row_width += cv::v_reduce_sum(n_width);
+          }
+#endif
+          for (; x < size.width; ++x) {
+            const bool lit = bright[x] != 0;
+            // A pixel with a prior of its own neighbourhood, not near a highlight.
+            const bool prior = (lo_f[x] < 0.5f * kNoPriorLo) & !lit;
+            // Near a depth edge in the priors, the span of both sides (the edge may have moved).
+            const bool edge = prior & (hi_e[x] - lo_e[x] > jump);
+            const float lo_d = edge ? lo_e[x] : lo_f[x];
+            const float hi_d = edge ? hi_e[x] : hi_f[x];
+            int a = std::max(min_disparity, floorToInt(lo_d - r));
+            int b = std::min(max_disparity, ceilToInt(hi_d + r));
+            // No prior, or a prior (sub-pixel) just outside the full range that leaves nothing:
+            // search it all. Sentinels give a > b here by construction (lo 1e9, hi -1e9).
+            const bool full = !prior | (a > b);
+            a = full ? min_disparity : a;
+            b = full ? max_disparity : b;
+            lo[x] = int16_t(a);
+            hi[x] = int16_t(b);
+            const bool nar = (a > min_disparity) | (b < max_disparity);
+            narrowed[x] = uint8_t(nar);
+            row_bright += lit;
+            row_edge += edge;
+            row_narrowed += nar;
+            row_width += nar ? b - a + 1 : 0;
+          }
+          c[kBright] += row_bright;
+          c[kEdge] += row_edge;
+          c[kNarrowed] += row_narrowed;
+          c[kFull] += size.width - row_narrowed;
+          c[kWidth] += row_width;
         }
-        a = std::max(min_disparity, int(std::floor(lo_d - r)));
-        b = std::min(max_disparity, int(std::ceil(hi_d + r)));
-        // A prior (sub-pixel) just outside the full range can leave nothing: search it all.
-        if (a > b) {
-          a = min_disparity;
-          b = max_disparity;
-        }
-      }
-      lo[x] = int16_t(a);
-      hi[x] = int16_t(b);
-      if (a > min_disparity || b < max_disparity) {
-        narrowed[x] = 1;
-        ++stats_.narrowed_pixels;
-        width_sum += b - a + 1;
-      } else {
-        ++stats_.full_range_pixels;
-      }
-    }
-  }
+      });
+  stats_.refresh_pixels = counts[kRefresh];
+  stats_.full_range_pixels = counts[kFull];
+  stats_.highlight_pixels = counts[kBright];
+  stats_.edge_zone_pixels = counts[kEdge];
+  stats_.narrowed_pixels = counts[kNarrowed];
+  const int64_t width_sum = counts[kWidth];
   if (stats_.narrowed_pixels > 0) {
     stats_.mean_narrowed_width_px = double(width_sum) / double(stats_.narrowed_pixels);
   }
@@ -282,38 +460,69 @@ void TemporalPrior::update(const cv::Mat& disparity) {
     throw std::invalid_argument("TemporalPrior::update: disparity size differs from the range's");
   }
   const bool have_narrowed = !narrowed_.empty() && narrowed_.size() == size_;
-  int64_t hits = 0, misses = 0;
-  for (int y = 0; y < size_.height; ++y) {
-    const float* in = disparity.ptr<float>(y);
-    float* d = last_disparity_.ptr<float>(y);
-    uint16_t* age = age_.ptr<uint16_t>(y);
-    uint8_t* fail = failures_.ptr<uint8_t>(y);
-    const uint8_t* narrowed = have_narrowed ? narrowed_.ptr<uint8_t>(y) : nullptr;
-    for (int x = 0; x < size_.width; ++x) {
-      const bool valid = std::isfinite(in[x]);
-      const bool was_narrowed = narrowed && narrowed[x];
-      if (valid) {
-        d[x] = in[x];
-        age[x] = 0;
-        fail[x] = 0;
-        hits += was_narrowed;
-      } else {
-        if (was_narrowed) {
-          age[x] = saturatingIncrement(age[x]);
-          ++misses;
-          if (fail[x] < 255) ++fail[x];
-        } else {
-          // The whole range was searched and nothing passed the criteria: whatever the prior
-          // said is not confirmed, so it is dropped (a wrong prior cannot outlive a refresh).
-          d[x] = std::numeric_limits<float>::quiet_NaN();
-          age[x] = kAgeNone;
+  if (!have_narrowed) zero_row_.assign(size_.width, 0);
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  const std::array<int64_t, 2> judged_counts =
+      forRowStripes<2>(size_.height, [&](int y_begin, int y_end, std::array<int64_t, 2>& c) {
+        for (int y = y_begin; y < y_end; ++y) {
+          const float* in = disparity.ptr<float>(y);
+          float* d = last_disparity_.ptr<float>(y);
+          uint16_t* age = age_.ptr<uint16_t>(y);
+          uint8_t* fail = failures_.ptr<uint8_t>(y);
+          // The narrowed flags are consumed here and cleared in the same pass.
+          uint8_t* narrowed = have_narrowed ? narrowed_.ptr<uint8_t>(y) : zero_row_.data();
+          int row_hits = 0, row_misses = 0;
+          int x = 0;
+#if CV_SIMD128
+          {
+            const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
+            const cv::v_uint16x8 v_none = cv::v_setall_u16(kAgeNone);
+            const cv::v_float32x4 v_nan = cv::v_setall_f32(nan);
+            for (; x <= size_.width - 8; x += 8) {
+              cv::v_float32x4 in0, in1, ok0, ok1, nar0, nar1;
+              const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
+              const cv::v_uint16x8 nar = cv::v_load_expand(narrowed + x) != v_zero;
+              widenMask(nar, &nar0, &nar1);
+              const cv::v_float32x4 kept0 = cv::v_select(nar0, cv::v_load(d + x), v_nan);
+              const cv::v_float32x4 kept1 = cv::v_select(nar1, cv::v_load(d + x + 4), v_nan);
+              cv::v_store(d + x, cv::v_select(ok0, in0, kept0));
+              cv::v_store(d + x + 4, cv::v_select(ok1, in1, kept1));
+              // Saturating adds: kAgeNone + 1 stays kAgeNone, 255 failures + 1 stay 255 (v_pack).
+              const cv::v_uint16x8 aged = cv::v_select(nar, cv::v_load(age + x) + v_one, v_none);
+              cv::v_store(age + x, cv::v_select(ok, v_zero, aged));
+              const cv::v_uint16x8 f = cv::v_load_expand(fail + x);
+              const cv::v_uint16x8 failed =
+                  cv::v_select(ok, v_zero, cv::v_select(nar, f + v_one, f));
+              cv::v_store_low(fail + x, cv::v_pack(failed, failed));
+              cv::v_store_low(narrowed + x, cv::v_setzero_u8());
+              row_hits += countMask(ok & nar);
+              row_misses += countMask(~ok & nar);
+            }
+          }
+#endif
+          for (; x < size_.width; ++x) {
+            const bool valid = finite(in[x]);
+            const bool was_narrowed = narrowed[x] != 0;
+            // Invalid after a full-range search: whatever the prior said is not confirmed, so it is
+            // dropped (a wrong prior cannot outlive a refresh). Invalid after a narrowed search:
+            // the prior ages and counts a failure.
+            const float kept = was_narrowed ? d[x] : nan;
+            const uint16_t aged = was_narrowed ? saturatingIncrement(age[x]) : kAgeNone;
+            const uint8_t failed = was_narrowed ? uint8_t(fail[x] + (fail[x] < 255)) : fail[x];
+            d[x] = valid ? in[x] : kept;
+            age[x] = valid ? uint16_t(0) : aged;
+            fail[x] = valid ? uint8_t(0) : failed;
+            row_hits += valid & was_narrowed;
+            row_misses += !valid & was_narrowed;
+            narrowed[x] = 0;
+          }
+          c[0] += row_hits;
+          c[1] += row_misses;
         }
-      }
-    }
-  }
+      });
+  const int64_t hits = judged_counts[0], misses = judged_counts[1];
   stats_.prior_hits = hits;
   stats_.prior_misses = misses;
-  if (have_narrowed) narrowed_.setTo(0);
   ++frame_count_;
   // Most narrowed searches failing means the priors describe another scene: whatever a few of them
   // accepted is suspect too, so all are dropped rather than left to fail pixel by pixel.
@@ -331,11 +540,24 @@ double TemporalPrior::hitShare(const cv::Mat& disparity, int64_t* judged) const 
     for (int y = 0; y < disparity.rows; ++y) {
       const float* d = disparity.ptr<float>(y);
       const uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
-      for (int x = 0; x < disparity.cols; ++x) {
-        if (!narrowed[x]) continue;
-        ++n;
-        hits += std::isfinite(d[x]);
+      int row_n = 0, row_hits = 0;
+      int x = 0;
+#if CV_SIMD128
+      for (; x <= disparity.cols - 8; x += 8) {
+        cv::v_float32x4 in0, in1, ok0, ok1;
+        const cv::v_uint16x8 ok = finiteMask8(d + x, &in0, &in1, &ok0, &ok1);
+        const cv::v_uint16x8 nar = cv::v_load_expand(narrowed + x) != cv::v_setzero_u16();
+        row_n += countMask(nar);
+        row_hits += countMask(nar & ok);
       }
+#endif
+      for (; x < disparity.cols; ++x) {
+        const bool nar = narrowed[x] != 0;
+        row_n += nar;
+        row_hits += nar & finite(d[x]);
+      }
+      n += row_n;
+      hits += row_hits;
     }
   }
   if (judged) *judged = n;
@@ -346,7 +568,8 @@ bool TemporalPrior::sceneChanged(const cv::Mat& disparity) const {
   if (!(params_.min_prior_hit_share > 0.0)) return false;
   int64_t judged = 0;
   const double share = hitShare(disparity, &judged);
-  return judged > 0 && judged >= disparity.total() / 20 && share < params_.min_prior_hit_share;
+  return judged > 0 && judged >= int64_t(disparity.total() / 20) &&
+         share < params_.min_prior_hit_share;
 }
 
 void TemporalPrior::dropAll() {
@@ -382,24 +605,50 @@ void TemporalFusion::update(const cv::Mat& disparity) {
     age_.create(disparity.size(), CV_16UC1);
     age_.setTo(kAgeNone);
   }
-  const uint16_t max_age = uint16_t(max_age_frames_);
-  for (int y = 0; y < disparity.rows; ++y) {
-    const float* in = disparity.ptr<float>(y);
-    float* d = disparity_.ptr<float>(y);
-    uint16_t* age = age_.ptr<uint16_t>(y);
-    for (int x = 0; x < disparity.cols; ++x) {
-      if (std::isfinite(in[x])) {
-        d[x] = in[x];
-        age[x] = 0;
-      } else if (age[x] != kAgeNone) {
-        age[x] = uint16_t(age[x] + 1);
-        if (age[x] > max_age) {
-          age[x] = kAgeNone;
-          d[x] = std::numeric_limits<float>::quiet_NaN();
+  const int max_age = max_age_frames_;
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  forRowStripes<1>(disparity.rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
+    for (int y = y_begin; y < y_end; ++y) {
+      const float* in = disparity.ptr<float>(y);
+      float* d = disparity_.ptr<float>(y);
+      uint16_t* age = age_.ptr<uint16_t>(y);
+      int x = 0;
+#if CV_SIMD128
+      {
+        const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
+        const cv::v_uint16x8 v_none = cv::v_setall_u16(kAgeNone);
+        const cv::v_uint16x8 v_max_age = cv::v_setall_u16(uint16_t(max_age));
+        const cv::v_float32x4 v_nan = cv::v_setall_f32(nan);
+        for (; x <= disparity.cols - 8; x += 8) {
+          cv::v_float32x4 in0, in1, ok0, ok1, ex0, ex1;
+          const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
+          const cv::v_uint16x8 a = cv::v_load(age + x);
+          const cv::v_uint16x8 held = a != v_none;
+          const cv::v_uint16x8 expired = held & (a >= v_max_age);  // a + 1 > max_age
+          const cv::v_uint16x8 older = cv::v_select(expired, v_none, a + (held & v_one));
+          cv::v_store(age + x, cv::v_select(ok, v_zero, older));
+          widenMask(expired, &ex0, &ex1);
+          const cv::v_float32x4 kept0 = cv::v_select(ex0, v_nan, cv::v_load(d + x));
+          const cv::v_float32x4 kept1 = cv::v_select(ex1, v_nan, cv::v_load(d + x + 4));
+          cv::v_store(d + x, cv::v_select(ok0, in0, kept0));
+          cv::v_store(d + x + 4, cv::v_select(ok1, in1, kept1));
         }
       }
+#endif
+      for (; x < disparity.cols; ++x) {
+        const bool valid = finite(in[x]);
+        const int a = age[x];
+        // A held value one frame older; past the maximum age it is forgotten. A pixel with no
+        // value (kAgeNone) stays as it is.
+        const bool held = a != kAgeNone;
+        const bool expired = held & (a + 1 > max_age);
+        const uint16_t older = expired ? kAgeNone : uint16_t(a + held);
+        const float kept = expired ? nan : d[x];
+        d[x] = valid ? in[x] : kept;
+        age[x] = valid ? uint16_t(0) : older;
+      }
     }
-  }
+  });
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -407,7 +656,8 @@ CoverageTracker::CoverageTracker(int within_frames) { setWithinFrames(within_fra
 
 void CoverageTracker::setWithinFrames(int within_frames) {
   if (within_frames < 1 || within_frames > 65534) {
-    throw std::invalid_argument(rangeMessage("coverage_within_frames", "[1, 65534]", within_frames));
+    throw std::invalid_argument(
+        rangeMessage("coverage_within_frames", "[1, 65534]", within_frames));
   }
   within_frames_ = within_frames;
 }
@@ -427,21 +677,37 @@ void CoverageTracker::update(const cv::Mat& disparity) {
     longest_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
     ever_ = cv::Mat::zeros(disparity.size(), CV_8UC1);
   }
-  for (int y = 0; y < disparity.rows; ++y) {
-    const float* in = disparity.ptr<float>(y);
-    uint16_t* cur = current_.ptr<uint16_t>(y);
-    uint16_t* lng = longest_.ptr<uint16_t>(y);
-    uint8_t* ever = ever_.ptr<uint8_t>(y);
-    for (int x = 0; x < disparity.cols; ++x) {
-      if (std::isfinite(in[x])) {
-        cur[x] = 0;
-        ever[x] = 1;
-      } else {
-        cur[x] = saturatingIncrement(cur[x]);
-        lng[x] = std::max(lng[x], cur[x]);
+  forRowStripes<1>(disparity.rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
+    for (int y = y_begin; y < y_end; ++y) {
+      const float* in = disparity.ptr<float>(y);
+      uint16_t* cur = current_.ptr<uint16_t>(y);
+      uint16_t* lng = longest_.ptr<uint16_t>(y);
+      uint8_t* ever = ever_.ptr<uint8_t>(y);
+      int x = 0;
+#if CV_SIMD128
+      {
+        const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
+        for (; x <= disparity.cols - 8; x += 8) {
+          cv::v_float32x4 in0, in1, ok0, ok1;
+          const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
+          const cv::v_uint16x8 run = cv::v_load(cur + x) + v_one;  // saturating at kAgeNone
+          cv::v_store(cur + x, cv::v_select(ok, v_zero, run));
+          const cv::v_uint16x8 lng_old = cv::v_load(lng + x);
+          cv::v_store(lng + x, cv::v_select(ok, lng_old, cv::v_max(lng_old, run)));
+          const cv::v_uint16x8 ev = cv::v_select(ok, v_one, cv::v_load_expand(ever + x));
+          cv::v_store_low(ever + x, cv::v_pack(ev, ev));
+        }
+      }
+#endif
+      for (; x < disparity.cols; ++x) {
+        const bool valid = finite(in[x]);
+        const uint16_t run = saturatingIncrement(cur[x]);
+        cur[x] = valid ? uint16_t(0) : run;
+        lng[x] = valid ? lng[x] : std::max(lng[x], run);
+        ever[x] = valid ? uint8_t(1) : ever[x];
       }
     }
-  }
+  });
   ++frames_;
 }
 
@@ -549,9 +815,14 @@ const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
 bool TemporalTracker::rejectPriors(const cv::Mat& disparity) {
   checkDisparity(disparity, "TemporalTracker::rejectPriors");
   if (!params_.enabled || !priors_used_ || !frame_open_) return false;
+  if (!(params_.min_prior_hit_share > 0.0)) return false;
+  // The same test as TemporalPrior::sceneChanged(), from one pass over the image.
   int64_t judged = 0;
   const double share = prior_.hitShare(disparity, &judged);
-  if (!prior_.sceneChanged(disparity)) return false;
+  if (!(judged > 0 && judged >= int64_t(disparity.total() / 20) &&
+        share < params_.min_prior_hit_share)) {
+    return false;
+  }
   std::ostringstream os;
   os << "scene change: " << std::lround(100.0 * share) << "% of " << judged
      << " narrowed searches found a disparity (< " << 100.0 * params_.min_prior_hit_share

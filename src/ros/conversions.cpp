@@ -121,7 +121,7 @@ StereoCalibration stereoFromCameraInfo(const sensor_msgs::CameraInfo& left,
   return s;
 }
 
-bool imageToMat(const sensor_msgs::Image& msg, cv::Mat& mat, std::string* error) {
+bool imageToMat(const sensor_msgs::Image& msg, cv::Mat& mat, std::string* error, bool copy) {
   if (msg.width == 0 || msg.height == 0) {
     setError(error, "empty image (" + std::to_string(msg.width) + "x" +
                         std::to_string(msg.height) + ", encoding '" + msg.encoding + "')");
@@ -134,7 +134,7 @@ bool imageToMat(const sensor_msgs::Image& msg, cv::Mat& mat, std::string* error)
   }
   return wrapRawImage(msg.data.data(), msg.data.size(), static_cast<int>(msg.width),
                       static_cast<int>(msg.height), msg.step, msg.encoding,
-                      msg.is_bigendian != 0, mat, error);
+                      msg.is_bigendian != 0, mat, error, copy);
 }
 
 sensor_msgs::Image matToImage(const cv::Mat& mat, const std::string& encoding,
@@ -172,14 +172,12 @@ cv::Rect validBoundingBox(const cv::Mat& disparity) {
   int x0 = disparity.cols, y0 = disparity.rows, x1 = -1, y1 = -1;
   for (int r = 0; r < disparity.rows; ++r) {
     const float* p = disparity.ptr<float>(r);
-    int first = -1, last = -1;
-    for (int c = 0; c < disparity.cols; ++c) {
-      if (std::isfinite(p[c])) {
-        if (first < 0) first = c;
-        last = c;
-      }
-    }
-    if (first < 0) continue;
+    // From both ends inwards: a row with valid pixels near its ends costs a few reads, not a pass.
+    int first = 0;
+    while (first < disparity.cols && !std::isfinite(p[first])) ++first;
+    if (first == disparity.cols) continue;
+    int last = disparity.cols - 1;
+    while (!std::isfinite(p[last])) --last;
     x0 = std::min(x0, first);
     x1 = std::max(x1, last);
     y0 = std::min(y0, r);
@@ -217,7 +215,9 @@ stereo_msgs::DisparityImage toDisparityImage(const cv::Mat& disparity,
     const float* src = disparity.ptr<float>(r);
     float* dst = reinterpret_cast<float*>(img.data.data() + static_cast<size_t>(r) * img.step);
     for (int c = 0; c < disparity.cols; ++c) {
-      dst[c] = std::isfinite(src[c]) ? src[c] - shift : invalid;
+      // isfinite as one ordered compare (false for NaN and inf), so that the loop vectorises.
+      const bool finite = std::fabs(src[c]) <= std::numeric_limits<float>::max();
+      dst[c] = finite ? src[c] - shift : invalid;
     }
   }
   // The box is computed from what was written, so it always lies inside the image and is empty
@@ -283,18 +283,20 @@ sensor_msgs::PointCloud2 toPointCloud2(const OrganizedCloud& cloud,
     const cv::Vec3f* p = cloud.xyz.ptr<cv::Vec3f>(r);
     const cv::Vec3b* col = cloud.bgr.empty() ? nullptr : cloud.bgr.ptr<cv::Vec3b>(r);
     uint8_t* dst = msg.data.data() + static_cast<size_t>(r) * msg.row_step;
+    // Branch-free, one 16-byte record per point (the valid / invalid pattern of a disparity map
+    // is irregular, so a branch per point mispredicts often).
+    constexpr float kMax = std::numeric_limits<float>::max();
     for (int c = 0; c < cloud.xyz.cols; ++c, dst += kPointStep) {
-      float xyz[3] = {p[c][0], p[c][1], p[c][2]};
-      if (!(std::isfinite(xyz[0]) && std::isfinite(xyz[1]) && std::isfinite(xyz[2]))) {
-        xyz[0] = xyz[1] = xyz[2] = kNaN;
-      }
-      std::memcpy(dst, xyz, sizeof(xyz));
+      const float x = p[c][0], y = p[c][1], z = p[c][2];
+      const bool finite = (std::fabs(x) <= kMax) & (std::fabs(y) <= kMax) & (std::fabs(z) <= kMax);
       uint32_t rgb = 0;
       if (col) {
         rgb = (static_cast<uint32_t>(col[c][2]) << 16) | (static_cast<uint32_t>(col[c][1]) << 8) |
               static_cast<uint32_t>(col[c][0]);
       }
-      std::memcpy(dst + 12, &rgb, sizeof(rgb));
+      float record[4] = {finite ? x : kNaN, finite ? y : kNaN, finite ? z : kNaN, 0.0f};
+      std::memcpy(&record[3], &rgb, sizeof(rgb));
+      std::memcpy(dst, record, sizeof(record));
     }
   }
   return msg;

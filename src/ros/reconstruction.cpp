@@ -8,6 +8,7 @@
 #include <vector>
 
 #include <boost/bind/bind.hpp>
+#include <boost/make_shared.hpp>
 #include <sensor_msgs/PointCloud2.h>
 #include <sensor_msgs/image_encodings.h>
 #include <stereo_msgs/DisparityImage.h>
@@ -31,6 +32,13 @@ double percentile(std::vector<double> v, double q) {
   const size_t k = static_cast<size_t>(std::round(q * (v.size() - 1)));
   std::nth_element(v.begin(), v.begin() + k, v.end());
   return v[k];
+}
+
+// Messages are published through shared pointers: a subscriber in the same nodelet manager then
+// gets the message itself (no serialisation, no copy), and remote ones are served as before.
+template <typename M>
+boost::shared_ptr<M> shared(M&& message) {
+  return boost::make_shared<M>(std::move(message));
 }
 
 // Applies a rigid transform to the xyz of a PointCloud2 written by ros_conv::toPointCloud2
@@ -71,6 +79,9 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   e = params.validate();
   if (!e.empty()) throw std::invalid_argument(e);
   pipeline_ = std::make_unique<Pipeline>(params);
+  // The rectification residual (a SIFT pass every quality_stride frames, ~0.5 s at 960x540 on a
+  // loaded 2-core machine) is a diagnostic: measured beside the processing, not inside a frame.
+  pipeline_->setAsyncRectificationQuality(true);
 
   if (!ros_params_.target_frame.empty()) {
     tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
@@ -398,7 +409,9 @@ void Reconstruction::processPair(const Pair& pair) {
       }
     }
   }
-  // Fused and coverage outputs are computed while configured or while someone listens.
+  // Fused and coverage outputs are computed while configured or while someone listens; the
+  // cloud (8 MB at 960x540) only while configured and someone listens to points2, and the left
+  // colour image (conversion + 3-channel remap) only for the cloud or left/image_rect_color.
   {
     OutputParams configured;
     {
@@ -408,11 +421,15 @@ void Reconstruction::processPair(const Pair& pair) {
     PipelineParams p = pipeline_->params();
     const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0;
     const bool want_cov = configured.coverage || pub_coverage_.getNumSubscribers() > 0;
-    if (p.output.fused != want_fused || p.output.coverage != want_cov) {
+    const bool want_cloud = configured.point_cloud && pub_points_.getNumSubscribers() > 0;
+    if (p.output.fused != want_fused || p.output.coverage != want_cov ||
+        p.output.point_cloud != want_cloud) {
       p.output.fused = want_fused;
       p.output.coverage = want_cov;
+      p.output.point_cloud = want_cloud;
       pipeline_->setParams(p);
     }
+    pipeline_->setColorOutput(pub_left_rect_.getNumSubscribers() > 0);
   }
 
   const ros::Time stamp = pair.left->header.stamp;
@@ -452,12 +469,14 @@ void Reconstruction::processPair(const Pair& pair) {
     }
   }
 
+  // Views of the message data, no copies: the pair holds the messages until processing ends and
+  // the pipeline only reads its input.
   StereoInput in;
-  if (!ros_conv::imageToMat(*pair.left, in.left, &error)) {
+  if (!ros_conv::imageToMat(*pair.left, in.left, &error, false)) {
     reject("left image", error);
     return;
   }
-  if (!ros_conv::imageToMat(*pair.right, in.right, &error)) {
+  if (!ros_conv::imageToMat(*pair.right, in.right, &error, false)) {
     reject("right image", error);
     return;
   }
@@ -509,28 +528,30 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
   range.delta_d = p.matcher.subpixel ? ros_params_.subpixel_delta_d : 1.0;
 
   if (pub_disparity_.getNumSubscribers() > 0) {
-    pub_disparity_.publish(ros_conv::toDisparityImage(out.match.disparity, g, range, header));
+    pub_disparity_.publish(
+        shared(ros_conv::toDisparityImage(out.match.disparity, g, range, header)));
   }
   if (pub_disparity_color_.getNumSubscribers() > 0) {
     // A fixed colour scale (the search range) keeps colours comparable from frame to frame.
-    pub_disparity_color_.publish(ros_conv::matToImage(
+    pub_disparity_color_.publish(shared(ros_conv::matToImage(
         colorizeDisparity(out.match.disparity, range.min_disparity, range.max_disparity),
-        enc::BGR8, header));
+        enc::BGR8, header)));
   }
   if (pub_fused_.getNumSubscribers() > 0 && !out.fused_disparity.empty()) {
-    pub_fused_.publish(ros_conv::toDisparityImage(out.fused_disparity, g, range, header));
+    pub_fused_.publish(shared(ros_conv::toDisparityImage(out.fused_disparity, g, range, header)));
   }
   if (pub_confidence_.getNumSubscribers() > 0 && !out.match.confidence.empty()) {
-    pub_confidence_.publish(ros_conv::matToImage(out.match.confidence, enc::TYPE_32FC1, header));
+    pub_confidence_.publish(
+        shared(ros_conv::matToImage(out.match.confidence, enc::TYPE_32FC1, header)));
   }
   if (pub_coverage_.getNumSubscribers() > 0 && !out.coverage.empty()) {
-    pub_coverage_.publish(ros_conv::matToImage(out.coverage, enc::MONO16, header));
+    pub_coverage_.publish(shared(ros_conv::matToImage(out.coverage, enc::MONO16, header)));
   }
   if (pub_left_rect_.getNumSubscribers() > 0 && !out.left_rect_color.empty()) {
-    pub_left_rect_.publish(ros_conv::matToImage(out.left_rect_color, enc::BGR8, header));
+    pub_left_rect_.publish(shared(ros_conv::matToImage(out.left_rect_color, enc::BGR8, header)));
   }
   if (pub_right_rect_.getNumSubscribers() > 0 && !out.right_rect_gray.empty()) {
-    pub_right_rect_.publish(ros_conv::matToImage(out.right_rect_gray, enc::MONO8, header));
+    pub_right_rect_.publish(shared(ros_conv::matToImage(out.right_rect_gray, enc::MONO8, header)));
   }
   if (pub_points_.getNumSubscribers() == 0 || out.cloud.xyz.empty()) return;
   if (!depth_ok || !out.cloud.metric) {
@@ -542,7 +563,8 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
     }
     return;
   }
-  sensor_msgs::PointCloud2 cloud = ros_conv::toPointCloud2(out.cloud, header);
+  const auto cloud_msg = shared(ros_conv::toPointCloud2(out.cloud, header));
+  sensor_msgs::PointCloud2& cloud = *cloud_msg;
   if (tf_buffer_ && ros_params_.target_frame != header.frame_id) {
     try {
       const geometry_msgs::TransformStamped t = tf_buffer_->lookupTransform(
@@ -559,7 +581,7 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
       return;
     }
   }
-  pub_points_.publish(cloud);
+  pub_points_.publish(cloud_msg);
 }
 
 // ------------------------------------------------------------------------------------------------

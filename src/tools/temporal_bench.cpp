@@ -28,6 +28,7 @@
 #include "endo_stereo/core/image_io.hpp"
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/params_io.hpp"
+#include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/core/temporal.hpp"
 #include "surgical_scene.hpp"
 
@@ -55,6 +56,15 @@ Options:
   --out DIR           write coverage.png, fused.png (input | this frame | fused) and
                       results.json there (default: no files)
   --picture-frame N   frame shown in fused.png (default: the last)
+  --pipeline          instead of the comparison: run the whole per-frame Pipeline (bgr8 input,
+                      calibrated rectification with the scene's calibration, priors, the outputs
+                      of the preset plus the point cloud) and print the median / minimum time of
+                      each stage after the warm-up, and a checksum of the disparities and clouds
+                      of all frames (equal checksums: identical outputs)
+  --pipeline-no-cloud  the same without the point cloud and the rectified colour image (the
+                      nodelet's work while only the disparity has listeners)
+  --async-quality     with --pipeline: measure the rectification quality in the background, as
+                      the nodelet does
   -h, --help          this text
 )";
 
@@ -91,6 +101,8 @@ struct Timing {
     std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
     return v[v.size() / 2];
   }
+  double min() const { return ms.empty() ? 0.0 : *std::min_element(ms.begin(), ms.end()); }
+  double max() const { return ms.empty() ? 0.0 : *std::max_element(ms.begin(), ms.end()); }
 };
 
 double msSince(std::chrono::steady_clock::time_point t) {
@@ -107,6 +119,75 @@ cv::Mat sgbmDisparity(cv::Ptr<cv::StereoSGBM>& sgbm, const cv::Mat& l, const cv:
   return out;
 }
 
+// FNV-1a over a matrix's rows (type and size included): a checksum of outputs across builds.
+void hashMat(const cv::Mat& m, uint64_t* h) {
+  auto add = [h](const void* p, size_t n) {
+    const uint8_t* b = static_cast<const uint8_t*>(p);
+    for (size_t i = 0; i < n; ++i) *h = (*h ^ b[i]) * 1099511628211ull;
+  };
+  const int head[3] = {m.type(), m.rows, m.cols};
+  add(head, sizeof(head));
+  for (int y = 0; y < m.rows; ++y) add(m.ptr(y), m.cols * m.elemSize());
+}
+
+// --pipeline: the per-frame stages of Pipeline::process as the nodelet runs them.
+int runPipelineStages(endo_stereo::SurgicalScene& scene, endo_stereo::PipelineParams pp, int frames,
+                      int warmup, bool with_cloud, bool async_quality) {
+  pp.rectify.mode = endo_stereo::RectifyMode::kCalibrated;
+  pp.output.point_cloud = with_cloud;
+  endo_stereo::Pipeline pipeline(pp);
+  // Without a cloud: what the nodelet does while only the disparity has listeners.
+  pipeline.setColorOutput(with_cloud);
+  pipeline.setAsyncRectificationQuality(async_quality);
+  const std::string e = pipeline.setCalibration(scene.calibration());
+  if (!e.empty()) {
+    std::cerr << "calibration refused: " << e << "\n";
+    return 1;
+  }
+  Timing pre, rect, temporal, match, cloud, total;
+  uint64_t h_disp = 1469598103934665603ull, h_cloud = h_disp;
+  endo_stereo::SurgicalFrame frame;
+  endo_stereo::PipelineOutput out;
+  for (int i = 0; i < frames; ++i) {
+    scene.render(i, frame);
+    endo_stereo::StereoInput in{frame.left, frame.right, "bgr8", "bgr8", frame.stamp_s};
+    std::string error;
+    if (!pipeline.process(in, out, &error)) {
+      std::cerr << "frame " << i << ": " << error << "\n";
+      return 1;
+    }
+    hashMat(out.match.disparity, &h_disp);
+    hashMat(out.cloud.xyz, &h_cloud);
+    hashMat(out.cloud.bgr, &h_cloud);
+    if (i < warmup) continue;
+    pre.ms.push_back(out.preprocess_ms);
+    rect.ms.push_back(out.rectify_ms);
+    temporal.ms.push_back(out.temporal_ms);
+    match.ms.push_back(out.match_ms);
+    cloud.ms.push_back(out.cloud_ms);
+    total.ms.push_back(out.total_ms);
+  }
+  auto line = [](const char* name, const Timing& t) {
+    std::printf("  %-13s median %8.2f ms  min %8.2f ms  max %8.2f ms\n", name, t.median(), t.min(),
+                t.max());
+  };
+  std::printf("pipeline stages, frames %d..%d:\n", warmup, frames - 1);
+  line("preprocess", pre);
+  line("rectify", rect);
+  line("temporal", temporal);
+  line("match", match);
+  line("cloud", cloud);
+  line("total", total);
+  line("outside match", [&] {
+    Timing t;
+    for (size_t k = 0; k < total.ms.size(); ++k) t.ms.push_back(total.ms[k] - match.ms[k]);
+    return t;
+  }());
+  std::printf("checksum disparity %016llx cloud %016llx\n", (unsigned long long)h_disp,
+              (unsigned long long)h_cloud);
+  return 0;
+}
+
 cv::Mat labelled(const cv::Mat& img, const std::string& text) {
   cv::Mat out = img.clone();
   cv::putText(out, text, cv::Point(12, 32), cv::FONT_HERSHEY_SIMPLEX, 0.9, cv::Scalar(0, 0, 0), 4, cv::LINE_AA);
@@ -121,7 +202,8 @@ int main(int argc, char** argv) {
   endo_stereo::PipelineParams pp;
   int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
   bool breakdown = false;
-  bool run_sgbm = true, run_without = true;
+  bool run_sgbm = true, run_without = true, pipeline_stages = false, pipeline_cloud = true;
+  bool async_quality = false;
   std::string out_dir;
   std::vector<std::string> overrides;
   std::string params_file;
@@ -165,6 +247,13 @@ int main(int argc, char** argv) {
       run_sgbm = false;
     } else if (a == "--out") {
       out_dir = next();
+    } else if (a == "--pipeline") {
+      pipeline_stages = true;
+    } else if (a == "--async-quality") {
+      async_quality = true;
+    } else if (a == "--pipeline-no-cloud") {
+      pipeline_stages = true;
+      pipeline_cloud = false;
     } else if (a == "--picture-frame") {
       picture_frame = std::atoi(next().c_str());
     } else {
@@ -206,6 +295,8 @@ int main(int argc, char** argv) {
   }
   pp.matcher.num_threads = threads;
   cv::setNumThreads(threads);
+  if (pipeline_stages) return runPipelineStages(scene, pp, frames, warmup, pipeline_cloud,
+                                                 async_quality);
   endo_stereo::TemporalParams with = pp.temporal, without = pp.temporal;
   with.enabled = true;
   without.enabled = false;

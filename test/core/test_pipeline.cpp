@@ -5,6 +5,7 @@
 #include <cmath>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <string>
 
@@ -340,6 +341,113 @@ TEST_F(PipelineTest, CalibratedCloudIsMetricAndANewCalibrationResetsPriors) {
   broken.left.K(0, 0) = 0.0;
   const std::string err = pipeline.setCalibration(broken);
   EXPECT_NE(err.find("left"), std::string::npos) << err;
+}
+
+// The rectify stage remaps with fixed-point tables converted once from the float maps; OpenCV's
+// INTER_LINEAR remap converts float maps to the same form on every call, so the images must be
+// bit-identical to a remap with the float maps (rectifyImage() still uses those).
+TEST_F(PipelineTest, CalibratedRectificationIsBitIdenticalToTheFloatMapRemap) {
+  SurgicalSceneParams sp;
+  sp.width = 200;  // not a multiple of any SIMD width
+  sp.height = 150;
+  sp.seed = 9;
+  const SurgicalScene scene(sp);
+  SurgicalFrame frame;
+  scene.render(0, frame);
+  PipelineParams params = passThroughParams();
+  params.rectify.mode = RectifyMode::kCalibrated;
+  params.output.point_cloud = true;
+  Pipeline pipeline(params);
+  // The scene's own calibration is already rectified (identity maps): give the cameras some
+  // radial distortion so that the maps interpolate between pixels.
+  StereoCalibration calib = scene.calibration();
+  calib.left.D = {-0.08, 0.01, 0.0, 0.0, 0.0};
+  calib.right.D = {0.05, -0.01, 0.0, 0.0, 0.0};
+  ASSERT_EQ(pipeline.setCalibration(calib), "");
+  StereoInput in{frame.left, frame.right, "bgr8", "bgr8", 0.0};
+  PipelineOutput out;
+  std::string error;
+  ASSERT_TRUE(pipeline.process(in, out, &error)) << error;
+
+  cv::Mat left_gray, right_gray, ref;
+  cv::cvtColor(frame.left, left_gray, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(frame.right, right_gray, cv::COLOR_BGR2GRAY);
+  ASSERT_TRUE(pipeline.rectifier().rectifyImage(true, left_gray, ref, cv::INTER_LINEAR, &error));
+  EXPECT_EQ(cv::norm(out.left_rect_gray, ref, cv::NORM_INF), 0.0);
+  ASSERT_TRUE(pipeline.rectifier().rectifyImage(false, right_gray, ref, cv::INTER_LINEAR, &error));
+  EXPECT_EQ(cv::norm(out.right_rect_gray, ref, cv::NORM_INF), 0.0);
+  ASSERT_TRUE(pipeline.rectifier().rectifyImage(true, frame.left, ref, cv::INTER_LINEAR, &error));
+  EXPECT_EQ(cv::norm(out.left_rect_color, ref, cv::NORM_INF), 0.0);
+  // The maps are not the identity: the test would notice a remap that did nothing.
+  EXPECT_GT(cv::norm(out.left_rect_gray, left_gray, cv::NORM_L1), 0.0);
+}
+
+TEST_F(PipelineTest, ColourIsSkippedOnlyWhenNeitherTheCloudNorTheColourImageIsWanted) {
+  const SyntheticScene scene = smallScene();
+  StereoInput in = monoInput(scene, 0.0);
+  cv::Mat left_bgr, right_bgr;
+  cv::cvtColor(scene.left, left_bgr, cv::COLOR_GRAY2BGR);
+  cv::cvtColor(scene.right, right_bgr, cv::COLOR_GRAY2BGR);
+  in.left = left_bgr;
+  in.right = right_bgr;
+  in.left_encoding = in.right_encoding = "bgr8";
+  PipelineParams params = passThroughParams();
+  params.rectify.focal_px = 500.0;  // a metric pass-through geometry, so that the cloud is built
+  params.rectify.baseline_m = 0.005;
+  Pipeline with_color(params), without_color(params);
+  without_color.setColorOutput(false);
+  PipelineOutput a, b;
+  std::string error;
+  ASSERT_TRUE(with_color.process(in, a, &error)) << error;
+  ASSERT_TRUE(without_color.process(in, b, &error)) << error;
+  EXPECT_FALSE(a.left_rect_color.empty());
+  EXPECT_TRUE(b.left_rect_color.empty());
+  EXPECT_TRUE(sameDisparity(a.match.disparity, b.match.disparity));
+
+  // With a cloud the colour is computed anyway (the cloud is coloured).
+  params.output.point_cloud = true;
+  without_color.setParams(params);
+  in.stamp_s = 0.04;
+  ASSERT_TRUE(without_color.process(in, b, &error)) << error;
+  ASSERT_FALSE(b.cloud.bgr.empty());
+  EXPECT_EQ(cv::norm(b.cloud.bgr, left_bgr, cv::NORM_INF), 0.0);
+}
+
+// The nodelet measures the rectification quality in the background: the same figure as inline,
+// reported later, with the frame it was measured on; the images do not change.
+TEST_F(PipelineTest, BackgroundQualityMeasurementGivesTheInlineFigureLater) {
+  SurgicalSceneParams sp;
+  sp.width = 320;
+  sp.height = 240;
+  sp.seed = 4;
+  const SurgicalScene scene(sp);
+  SurgicalFrame frame;
+  scene.render(0, frame);
+  cv::Mat left_gray, right_gray;
+  cv::cvtColor(frame.left, left_gray, cv::COLOR_BGR2GRAY);
+  cv::cvtColor(frame.right, right_gray, cv::COLOR_BGR2GRAY);
+  RectifyParams rp;
+  rp.mode = RectifyMode::kCalibrated;
+  rp.quality_stride = 2;
+  StereoRectifier inline_rect(rp), background(rp);
+  ASSERT_EQ(inline_rect.setCalibration(scene.calibration()), "");
+  ASSERT_EQ(background.setCalibration(scene.calibration()), "");
+  background.setAsyncQuality(true);
+  cv::Mat l1, r1, c1, l2, r2, c2;
+  std::string error;
+  ASSERT_TRUE(inline_rect.rectify(left_gray, right_gray, cv::Mat(), l1, r1, c1, &error)) << error;
+  ASSERT_TRUE(background.rectify(left_gray, right_gray, cv::Mat(), l2, r2, c2, &error)) << error;
+  EXPECT_EQ(cv::norm(l1, l2, cv::NORM_INF), 0.0);
+  EXPECT_EQ(cv::norm(r1, r2, cv::NORM_INF), 0.0);
+  const RectificationQuality expected = inline_rect.quality();
+  ASSERT_TRUE(expected.valid) << expected.message;
+  background.setAsyncQuality(false);  // waits for the measurement in flight and records it
+  const RectificationQuality q = background.quality();
+  ASSERT_TRUE(q.valid) << q.message;
+  EXPECT_EQ(q.frame_index, 0);
+  EXPECT_EQ(q.num_matches, expected.num_matches);
+  EXPECT_EQ(q.median_offset_px, expected.median_offset_px);
+  EXPECT_EQ(q.p90_offset_px, expected.p90_offset_px);
 }
 
 }  // namespace

@@ -117,6 +117,18 @@ class Pipeline {
 
   /// The temporal stage (coverage figures and colour image, fused state). Valid for the lifetime
   /// of this object; read it between process() calls only.
+  /**
+   * Whether PipelineOutput::left_rect_color is wanted on frames without a point cloud (default
+   * true). A caller that shows no rectified colour image (the nodelet while nobody subscribes to
+   * it) turns it off to skip the left image's colour conversion and colour remap; left_rect_color
+   * is then empty. The point cloud, when computed, is coloured either way.
+   */
+  void setColorOutput(bool wanted);
+
+  /// Measure the rectification quality on a background thread (StereoRectifier::
+  /// setAsyncQuality(); default false). PipelineOutput::rect_quality then lags by a few frames.
+  void setAsyncRectificationQuality(bool async);
+
   const TemporalTracker& temporal() const;
   /// The rectifier (quality, geometry, mapping between raw and rectified images). Same rules.
   const StereoRectifier& rectifier() const;

@@ -82,10 +82,14 @@ int encodingToCvType(const std::string& encoding);
  * Wrap (and copy) a raw buffer as delivered by sensor_msgs/Image into a cv::Mat of the
  * encoding's type, checking width, height, step and buffer size against the encoding.
  * mono16 with big_endian = true is byte-swapped into the host order.
+ * @param copy  true: @p out owns a copy. false: @p out is a read-only view of @p data (no copy;
+ *              the caller keeps the buffer alive and unchanged while @p out is used, and must
+ *              not write through it), except where a byte swap is needed (then a copy).
  * @return false with a message naming the encoding and the mismatching value.
  */
 bool wrapRawImage(const uint8_t* data, size_t data_size, int width, int height, size_t step,
-                  const std::string& encoding, bool big_endian, cv::Mat& out, std::string* error);
+                  const std::string& encoding, bool big_endian, cv::Mat& out, std::string* error,
+                  bool copy = true);
 
 /**
  * Convert one raw image to gray and colour.

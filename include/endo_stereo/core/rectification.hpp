@@ -256,6 +256,17 @@ class StereoRectifier {
   /// Forget the uncalibrated estimate and the frame counter (calibration and maps kept).
   void reset();
 
+  /**
+   * Calibrated and pass-through modes: measure the quality (a SIFT pass, hundreds of ms at
+   * 960x540) on a background thread instead of inside rectify() (default false: inside). The
+   * rectified images do not depend on the measurement in these modes, only quality() does: it
+   * then reports the measurement of an earlier frame (frame_index says which) once it is done,
+   * and a stride's measurement is skipped while the previous one still runs. A live caller (the
+   * nodelet) uses this so that one frame in quality_stride does not take a SIFT pass longer.
+   * Uncalibrated mode always measures inline (the measurement decides re-estimation there).
+   */
+  void setAsyncQuality(bool async);
+
  private:
   struct Impl;
   std::unique_ptr<Impl> impl_;

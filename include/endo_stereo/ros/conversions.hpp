@@ -69,9 +69,12 @@ StereoCalibration stereoFromCameraInfo(const sensor_msgs::CameraInfo& left,
  * Copies an Image message into a cv::Mat of the encoding's type (preprocess.hpp:
  * encodingToCvType(); mono16 big-endian data is swapped to host order). Checks the encoding,
  * that step and data size are consistent, and that the size is not zero.
+ * @param copy  false: @p mat is a read-only view of msg.data (no copy) unless a byte swap is
+ *              needed; the message must outlive the use of @p mat.
  * @return false with a message in @p error naming the mismatch.
  */
-bool imageToMat(const sensor_msgs::Image& msg, cv::Mat& mat, std::string* error);
+bool imageToMat(const sensor_msgs::Image& msg, cv::Mat& mat, std::string* error,
+                bool copy = true);
 
 /// cv::Mat -> Image with the given encoding (copies). The inverse of imageToMat.
 /// @throws std::invalid_argument when the Mat type does not fit the encoding.
