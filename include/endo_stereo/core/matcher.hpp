@@ -11,8 +11,10 @@
  *
  * Ours, in the default preset (the paper preset, config/paper.yaml, switches them off): a test
  * against fattening at depth edges (a pixel whose accepting window straddles a disparity jump is
- * rejected, edge_*), a least NCC for the best peak (min_ncc, stronger for narrowed per-pixel
- * ranges), epsilon 1.5 px. Measurements: docs/matcher_design.md / BENCHMARKS.md.
+ * flagged, edge_*; it is kept only when every small window holding it confirms its disparity
+ * against the neighbours' disparities, edge_verify_*, else rejected), a least NCC for the best
+ * peak (min_ncc, stronger for narrowed per-pixel ranges), epsilon 1.5 px. Measurements:
+ * docs/matcher_design.md / BENCHMARKS.md.
  *
  * A pixel searches the disparities of its range for which both windows lie inside the images (the
  * range is cut at the borders); pixels whose window leaves the image are not searched.
