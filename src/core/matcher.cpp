@@ -123,6 +123,7 @@ struct Scratch {
   std::vector<float> colsum_r;
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
+  float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
   std::vector<double> dbl_a, dbl_b;
   // Dense engine ("lanes over disparity"): vertical window sums of every column for the
   // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
@@ -221,7 +222,9 @@ struct Scratch {
     hvec.assign(dpad + 8, 0.f);
     dbl_a.assign(w + 64, 0.0);
     dbl_b.assign(w + 64, 0.0);
-    prof.assign(dpad, 0.f);
+    // 8 floats before (prof0[-1] is read, masked) and 16 after (whole groups past the end).
+    prof.assign(dpad + 24, 0.f);
+    prof0 = prof.data() + 8;
   }
   /// Forget all window sums (new stripe or new window size).
   void resetSums() {
@@ -1143,61 +1146,87 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
   for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l * sum_r_rev[i]) * inv_l * inv_r_rev[i];
 }
 
-/// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1), the same rules as
-/// the streaming tracker of the dense engine.
-// Written as passes over the profile: the highest interior maximum, the first index holding it
-// (the streaming tracker keeps the first of equal values: strict >), then the highest other
-// maximum. Max is exact in any order, so the 8-lane passes give the tracker's values.
+/// Greatest lane, in every lane (three butterfly steps).
+ES_INLINE V8f hmax8(V8f v) {
+  v = max8(v, __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3}));
+  v = max8(v, __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5}));
+  return max8(v, __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6}));
+}
+/// Least lane, in every lane.
+ES_INLINE V8i hmin8(V8i v) {
+  V8i t = __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3});
+  v = t < v ? t : v;
+  t = __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5});
+  v = t < v ? t : v;
+  t = __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6});
+  return t < v ? t : v;
+}
+
+/// One 8-lane group of a dense pixel's profile: S for the lanes k .. k + 7, stored to prof, and
+/// the right-to-left offers; with kMasked only the lanes inside [klo, khi] offer.
+template <bool kMasked>
+ES_INLINE void laneGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V8f il,
+                         const float* __restrict h, const float* __restrict srr,
+                         const float* __restrict irr, float* __restrict prof,
+                         float* __restrict rbv, float* __restrict rbd) {
+  const V8f sv = (load8(h + k) - ml * load8(srr + k)) * il * load8(irr + k);
+  store8(prof + k, sv);
+  const V8f rv = load8(rbv + k);
+  V8i up = sv > rv;
+  if (kMasked) up &= (kk >= vklo) & (kk <= vkhi);
+  store8(rbv + k, up ? sv : rv);
+  store8(rbd + k, up ? dv : load8(rbd + k));
+}
+
+/// Interior local maxima of one group, folded into the per-lane trackers: the lane's best (first
+/// of equal values: strict >), its index, and the best of the lane's other maxima. With kMasked
+/// only lanes strictly inside (klo, khi) count.
+template <bool kMasked>
+ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restrict prof, V8f& bv,
+                         V8f& sv, V8i& bk) {
+  const V8f v = load8(prof + k);
+  V8i mx = (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
+  if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
+  const V8f mv = mx ? v : splat8(kNegInf);
+  const V8i gt = mv > bv;
+  sv = gt ? bv : max8(sv, mv);
+  bk = gt ? kk : bk;
+  bv = gt ? mv : bv;
+}
+
+/// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1, n >= 3), the same
+/// rules as the dense engines: per lane the best interior maximum (first of equal values), its
+/// index and the lane's best other maximum, then butterfly reductions. prof[-1] and whole groups
+/// past n must be readable (masked).
 ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* best,
                            float* best_d, float* best_l, float* best_r, float* second) {
-  const V8f vninf = splat8(kNegInf);
-  auto isMax = [&](int i) { return (prof[i] > prof[i - 1]) & (prof[i] >= prof[i + 1]); };
-  float b = kNegInf;
-  {
-    V8f vb = vninf;
-    int i = 1;
-    for (; i + 9 <= n; i += 8) {  // interior indices i .. i + 7 <= n - 2
-      const V8f v = load8(prof + i);
-      const V8i m = (v > load8(prof + i - 1)) & (v >= load8(prof + i + 1));
-      vb = max8(vb, m ? v : vninf);
-    }
-    for (int k = 0; k < 8; ++k) b = std::max(b, vb[k]);
-    for (; i + 1 < n; ++i) {
-      if (isMax(i)) b = std::max(b, prof[i]);
-    }
-  }
-  int bi = -1;
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
+  const V8i vklo = {0, 0, 0, 0, 0, 0, 0, 0};
+  const int khi = n - 1;
+  const V8i vkhi = {khi, khi, khi, khi, khi, khi, khi, khi};
+  V8f bv = splat8(kNegInf), sv = splat8(kNegInf);
+  V8i bk = {0, 0, 0, 0, 0, 0, 0, 0};
+  const int g1 = khi / 8;
+  V8i kk = lane;
+  for (int g = 0; g <= g1; ++g, kk += eight_i) peakGroup<true>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+  const V8f bmax = hmax8(bv);
+  const float b = bmax[0];
   float sec = kNegInf;
   if (b != kNegInf) {
-    for (int i = 1; i + 1 < n; ++i) {
-      if (prof[i] == b && isMax(i)) {
-        bi = i;
-        break;
-      }
-    }
-    V8f vs = vninf;
-    const V8i vbi = V8i{bi, bi, bi, bi, bi, bi, bi, bi};
-    int i = 1;
-    for (; i + 9 <= n; i += 8) {
-      const V8f v = load8(prof + i);
-      const V8i idx = V8i{i, i + 1, i + 2, i + 3, i + 4, i + 5, i + 6, i + 7};
-      const V8i m = (v > load8(prof + i - 1)) & (v >= load8(prof + i + 1)) & (idx != vbi);
-      vs = max8(vs, m ? v : vninf);
-    }
-    for (int k = 0; k < 8; ++k) sec = std::max(sec, vs[k]);
-    for (; i + 1 < n; ++i) {
-      if (i != bi && isMax(i)) sec = std::max(sec, prof[i]);
-    }
-  }
-  if (n >= 2 && prof[0] > prof[1]) sec = std::max(sec, prof[0]);
-  if (n >= 2 && prof[n - 1] > prof[n - 2]) sec = std::max(sec, prof[n - 1]);
-  *best = b;
-  *second = sec;
-  if (bi >= 0) {
+    const int big = std::numeric_limits<int>::max();
+    const V8i cand = bv == bmax ? bk : V8i{big, big, big, big, big, big, big, big};
+    const int bi = hmin8(cand)[0];
+    const V8i sel = bk == V8i{bi, bi, bi, bi, bi, bi, bi, bi};
+    sec = hmax8(sel ? sv : bv)[0];
     *best_d = static_cast<float>(lo + bi);
     *best_l = prof[bi - 1];
     *best_r = prof[bi + 1];
   }
+  if (prof[0] > prof[1]) sec = std::max(sec, prof[0]);
+  if (prof[khi] > prof[khi - 1]) sec = std::max(sec, prof[khi]);
+  *best = b;
+  *second = sec;
 }
 
 // ---------------------------------------------------------------------------------------------
@@ -1273,54 +1302,6 @@ struct LaneRowArgs {
   float* prof;  // dp + 24, index k at prof[k] (prof[-1] valid)
   float *best, *best_d, *best_l, *best_r, *second;
 };
-
-/// Greatest lane, in every lane (three butterfly steps).
-ES_INLINE V8f hmax8(V8f v) {
-  v = max8(v, __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3}));
-  v = max8(v, __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5}));
-  return max8(v, __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6}));
-}
-/// Least lane, in every lane.
-ES_INLINE V8i hmin8(V8i v) {
-  V8i t = __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3});
-  v = t < v ? t : v;
-  t = __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5});
-  v = t < v ? t : v;
-  t = __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6});
-  return t < v ? t : v;
-}
-
-/// One 8-lane group of a dense pixel's profile: S for the lanes k .. k + 7, stored to prof, and
-/// the right-to-left offers; with kMasked only the lanes inside [klo, khi] offer.
-template <bool kMasked>
-ES_INLINE void laneGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V8f il,
-                         const float* __restrict h, const float* __restrict srr,
-                         const float* __restrict irr, float* __restrict prof,
-                         float* __restrict rbv, float* __restrict rbd) {
-  const V8f sv = (load8(h + k) - ml * load8(srr + k)) * il * load8(irr + k);
-  store8(prof + k, sv);
-  const V8f rv = load8(rbv + k);
-  V8i up = sv > rv;
-  if (kMasked) up &= (kk >= vklo) & (kk <= vkhi);
-  store8(rbv + k, up ? sv : rv);
-  store8(rbd + k, up ? dv : load8(rbd + k));
-}
-
-/// Interior local maxima of one group, folded into the per-lane trackers: the lane's best (first
-/// of equal values: strict >), its index, and the best of the lane's other maxima. With kMasked
-/// only lanes strictly inside (klo, khi) count.
-template <bool kMasked>
-ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restrict prof, V8f& bv,
-                         V8f& sv, V8i& bk) {
-  const V8f v = load8(prof + k);
-  V8i mx = (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
-  if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
-  const V8f mv = mx ? v : splat8(kNegInf);
-  const V8i gt = mv > bv;
-  sv = gt ? bv : max8(sv, mv);
-  bk = gt ? kk : bk;
-  bv = gt ? mv : bv;
-}
 
 /// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
 ES_KERNEL void lanePass1(const LaneRowArgs& a) {
@@ -1608,16 +1589,16 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
         if (c.uniform_ranges) {
           const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
           nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
-                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof.data());
+                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         } else {
           needMapL(c, s, x, y);
           for (int d = lo; d <= hi; ++d) {
             needMapR(c, s, x - d, y);
-            s.prof[d - lo] = nccValue(h[d - c.dmin], s.maps.mean_l[x], s.maps.sum_r[x - d],
+            s.prof0[d - lo] = nccValue(h[d - c.dmin], s.maps.mean_l[x], s.maps.sum_r[x - d],
                                       s.maps.inv_l[x], s.maps.inv_r[x - d]);
           }
         }
-        scanProfile(s.prof.data(), hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
+        scanProfile(s.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
       }
       if (x < b) {
@@ -1688,7 +1669,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
       }
     }
   } else if (d0 <= d1) {
-    float* v = s.prof.data();
+    float* v = s.prof0;
     nccSpan(d1 - d0 + 1, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0,
             s.maps.inv_l.data() + q + d0, sr, ir, v);
     // With a full search every left pixel inside the border has d in its range.
