@@ -115,7 +115,7 @@ struct Scratch {
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
-  std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi;
+  std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi, rl_ds;
   // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
   // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
   // pixel q is then the sum of w whole columns (q - r .. q + r), not a diagonal through 64 + w
@@ -124,6 +124,7 @@ struct Scratch {
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
   float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
+  std::vector<float> gather_s, gather_i;  // right statistics of one profile, contiguous
   std::vector<double> dbl_a, dbl_b;
   // Dense engine ("lanes over disparity"): vertical window sums of every column for the
   // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
@@ -225,6 +226,8 @@ struct Scratch {
     // 8 floats before (prof0[-1] is read, masked) and 16 after (whole groups past the end).
     prof.assign(dpad + 24, 0.f);
     prof0 = prof.data() + 8;
+    gather_s.assign(dpad + 16, 0.f);
+    gather_i.assign(dpad + 16, 0.f);
   }
   /// Forget all window sums (new stripe or new window size).
   void resetSums() {
@@ -1592,11 +1595,17 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
                      s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         } else {
           needMapL(c, s, x, y);
+          // Right statistics of x - d for d = lo .. hi, gathered contiguous, then the same
+          // expression as everywhere, 8 at a time.
+          float* gs = s.gather_s.data();
+          float* gi = s.gather_i.data();
           for (int d = lo; d <= hi; ++d) {
             needMapR(c, s, x - d, y);
-            s.prof0[d - lo] = nccValue(h[d - c.dmin], s.maps.mean_l[x], s.maps.sum_r[x - d],
-                                      s.maps.inv_l[x], s.maps.inv_r[x - d]);
+            gs[d - lo] = s.maps.sum_r[x - d];
+            gi[d - lo] = s.maps.inv_r[x - d];
           }
+          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x], gs, gi,
+                     s.prof0);
         }
         scanProfile(s.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
@@ -1624,16 +1633,19 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   // full search; with per-pixel ranges (narrow) usually a few, and only their columns are needed.
   int dv0 = std::max(c.dmin, r - q), dv1 = std::min(c.dmax, c.width - 1 - r - q);
   if (!c.uniform_ranges) {
-    int a0 = std::numeric_limits<int>::max(), a1 = std::numeric_limits<int>::min();
+    // The disparities d whose left pixel q + d holds d in its effective range, listed once.
+    s.rl_ds.clear();
     for (int d = dv0; d <= dv1; ++d) {
       int lo, hi;
-      if (effectiveRange(c, q + d, y, &lo, &hi) && d >= lo && d <= hi) {
-        a0 = std::min(a0, d);
-        a1 = d;
-      }
+      if (effectiveRange(c, q + d, y, &lo, &hi) && d >= lo && d <= hi) s.rl_ds.push_back(d);
     }
-    dv0 = a0;
-    dv1 = a1;
+    if (s.rl_ds.empty()) {
+      dv0 = 1;
+      dv1 = 0;
+    } else {
+      dv0 = s.rl_ds.front();
+      dv1 = s.rl_ds.back();
+    }
   }
   if (dv0 > dv1) {
     s.rb_v[q] = kNegInf;
@@ -1658,9 +1670,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   if (!c.uniform_ranges) {
     needMapR(c, s, q, y);
     const float sq = s.maps.sum_r[q], iq = s.maps.inv_r[q];
-    for (int d = d0; d <= d1; ++d) {
-      int lo, hi;
-      if (!effectiveRange(c, q + d, y, &lo, &hi) || d < lo || d > hi) continue;
+    for (const int d : s.rl_ds) {
       needMapL(c, s, q + d, y);
       const float v = nccValue(h[d - c.dmin], s.maps.mean_l[q + d], sq, s.maps.inv_l[q + d], iq);
       if (v > rv) {
