@@ -328,12 +328,18 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   }
 }
 
-// Column sums of the sparse engine: cs[k] (+)= l * r[k] for all disparity indices (r reversed).
-ES_KERNEL void colSet(int n, float* __restrict cs, float l, const float* __restrict r) {
-  for (int k = 0; k < n; ++k) cs[k] = l * r[k];
-}
-ES_KERNEL void colAdd(int n, float* __restrict cs, float l, const float* __restrict r) {
-  for (int k = 0; k < n; ++k) cs[k] += l * r[k];
+// Column sums of the sparse engine (r read mirrored, so that disparities are contiguous).
+/// A column's window sums afresh: cs[k] = sum over j < rows of l[j * l_step] * r[j * r_step + k],
+/// the rows summed in increasing order (one call instead of one per row).
+ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
+                        const float* __restrict r, size_t r_step, int rows) {
+  const float l0 = l[0];
+  for (int k = 0; k < n; ++k) cs[k] = l0 * r[k];
+  for (int j = 1; j < rows; ++j) {
+    const float lj = l[j * l_step];
+    const float* __restrict rj = r + j * r_step;
+    for (int k = 0; k < n; ++k) cs[k] += lj * rj[k];
+  }
 }
 ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
                           float l_out, const float* __restrict r_out) {
@@ -1023,10 +1029,8 @@ inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
   const cv::Mat& lf = c.im->lf;
   const cv::Mat& rr = c.im->rf_rev;
   const int base = c.im->rev_pad + c.width - 1 - x + c.dmin + k0;
-  colSet(n, cs, lf.ptr<float>(y - r)[x], rr.ptr<float>(y - r) + base);
-  for (int yy = y - r + 1; yy <= y + r; ++yy) {
-    colAdd(n, cs, lf.ptr<float>(yy)[x], rr.ptr<float>(yy) + base);
-  }
+  colFresh(n, cs, lf.ptr<float>(y - r) + x, lf.step1(), rr.ptr<float>(y - r) + base, rr.step1(),
+           c.w);
   s.col_k0[x] = k0;
   s.col_k1[x] = k1;
   if (s.col_row[x] < y - 1) s.hot.push_back(x);
@@ -1133,8 +1137,8 @@ inline void ensureColumnR(const LevelContext& c, Scratch& s, int q, int y, int k
   const int n = k1 - k0 + 1;
   float* cs = s.colsum_r.data() + static_cast<size_t>(q) * s.dpad + k0;
   const int base = c.im->l_pad + q + c.dmin + k0;
-  colSet(n, cs, rf.ptr<float>(y - r)[q], lp.ptr<float>(y - r) + base);
-  for (int yy = y - r + 1; yy <= y + r; ++yy) colAdd(n, cs, rf.ptr<float>(yy)[q], lp.ptr<float>(yy) + base);
+  colFresh(n, cs, rf.ptr<float>(y - r) + q, rf.step1(), lp.ptr<float>(y - r) + base, lp.step1(),
+           c.w);
   s.colr_k0[q] = k0;
   s.colr_k1[q] = k1;
   if (s.colr_row[q] < y - 1) s.hot_r.push_back(q);
