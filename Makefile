@@ -12,7 +12,7 @@ help:
 	@echo "make test   - install missing Debian packages, build, run every test (last line: N passed, N failed)"
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
-	@echo "make asan   - ASan+UBSan build in ws_asan, whole test suite;  make tsan - TSan nodelet run"
+	@echo "make asan   - ASan+UBSan build in .ws_asan, whole test suite;  make tsan - TSan nodelet run in .ws_tsan"
 	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 20000-frame soak"
 
 deps:

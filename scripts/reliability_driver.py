@@ -761,7 +761,16 @@ def inventory_table(paths):
            "|---" * (len(tables) + 1) + "|"]
     for i in ids:
         desc = next(b[i]["input"] for b in by_id if i in b)
-        cells = [describe(b[i]) if i in b else "n/a" for b in by_id]
+        cells = []
+        for b in by_id:
+            if i not in b:
+                cells.append("n/a")
+                continue
+            cell = describe(b[i])
+            # The same fault in the other node's own parameter names (reconfigure cases).
+            if b[i]["input"] != desc:
+                cell = "(sent: %s) %s" % (b[i]["input"].replace("|", "/"), cell)
+            cells.append(cell)
         out.append("| %s | %s |" % (desc, " | ".join(cells)))
     return "\n".join(out)
 

@@ -10,7 +10,7 @@
 #   overload  pairs published at OVERLOAD_RATE Hz (default 200) for OVERLOAD_S s (default 60),
 #             faster than the node processes them: fails unless memory stays bounded, drops are
 #             counted, every pair is accounted for, and the newest pair is processed.
-# Environment: WS (workspace with endo_stereo built; default ./ws), SOAK_OUT (results and logs,
+# Environment: WS (workspace with endo_stereo built; default ./.ws), SOAK_OUT (results and logs,
 # default out/reliability), SOAK_LABEL (file name prefix), SOAK_TIMEOUT_S (default 7200).
 # The node runs with a small search range (matcher max_disparity 23, window_max_px 15) so that a
 # 20000-frame run takes minutes on two cores; memory behaviour does not depend on the range.

@@ -285,6 +285,19 @@ bool loadStereoCameraInfoYaml(const std::string& left_path, const std::string& r
 
 bool loadOpenCvStereoYaml(const std::string& path, StereoCalibration& out, std::string* error,
                           double translation_scale) {
+  // OpenCV 4.6's XML parser dereferences a null pointer on a NUL byte inside the text (found by
+  // fuzz_opencv_stereo: a SIGSEGV no try/catch can turn into an error). A YAML, XML or JSON file
+  // has no NUL byte, so such a file is refused before the parser sees it (gzip files excepted).
+  const bool gzip = path.size() > 3 && path.compare(path.size() - 3, 3, ".gz") == 0;
+  if (!gzip) {
+    std::string text;
+    if (!readFile(path, &text)) return fail(error, path + ": cannot open");
+    const size_t nul = text.find('\0');
+    if (nul != std::string::npos) {
+      return fail(error, path + ": NUL byte at offset " + std::to_string(nul) +
+                             ": not a text (YAML, XML or JSON) file");
+    }
+  }
   cv::FileStorage fs;
   try {
     if (!fs.open(path, cv::FileStorage::READ)) return fail(error, path + ": cannot open");

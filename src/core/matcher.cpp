@@ -1155,17 +1155,17 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
 
 /// Greatest lane, in every lane (three butterfly steps).
 ES_INLINE V8f hmax8(V8f v) {
-  v = max8(v, __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3}));
-  v = max8(v, __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5}));
-  return max8(v, __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6}));
+  v = max8(v, __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3));
+  v = max8(v, __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5));
+  return max8(v, __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6));
 }
 /// Least lane, in every lane.
 ES_INLINE V8i hmin8(V8i v) {
-  V8i t = __builtin_shuffle(v, V8i{4, 5, 6, 7, 0, 1, 2, 3});
+  V8i t = __builtin_shufflevector(v, v, 4, 5, 6, 7, 0, 1, 2, 3);
   v = t < v ? t : v;
-  t = __builtin_shuffle(v, V8i{2, 3, 0, 1, 6, 7, 4, 5});
+  t = __builtin_shufflevector(v, v, 2, 3, 0, 1, 6, 7, 4, 5);
   v = t < v ? t : v;
-  t = __builtin_shuffle(v, V8i{1, 0, 3, 2, 5, 4, 7, 6});
+  t = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
   return t < v ? t : v;
 }
 

@@ -1,6 +1,7 @@
 // Validation of the matcher's parameters (MatcherParams); PostFilterParams::validate lives with
 // the post-filters in post_filter.cpp.
 #include <cmath>
+#include <cstdint>
 #include <cstdlib>
 #include <sstream>
 
@@ -10,11 +11,15 @@ namespace endo_stereo {
 
 std::string MatcherParams::validate() const {
   std::ostringstream msg;
-  if (max_disparity < min_disparity) {
+  // 64-bit arithmetic: any int (INT_MIN included) is judged without overflow.
+  const int64_t dmin = min_disparity, dmax = max_disparity;
+  if (dmin < -16383 || dmin > 16383 || dmax < -16383 || dmax > 16383) {
+    msg << "matcher.min_disparity/max_disparity = " << min_disparity << "/" << max_disparity
+        << " must lie in [-16383, 16383] and span at most 4096 values";
+  } else if (max_disparity < min_disparity) {
     msg << "matcher.max_disparity = " << max_disparity
         << " must be >= matcher.min_disparity = " << min_disparity;
-  } else if (max_disparity - min_disparity > 4095 || std::abs(min_disparity) > 16383 ||
-             std::abs(max_disparity) > 16383) {
+  } else if (dmax - dmin > 4095) {
     msg << "matcher.min_disparity/max_disparity = " << min_disparity << "/" << max_disparity
         << " must lie in [-16383, 16383] and span at most 4096 values";
   } else if (window_min_px < 3 || window_min_px % 2 == 0) {
@@ -37,8 +42,11 @@ std::string MatcherParams::validate() const {
     msg << "matcher.min_ncc_narrowed = " << min_ncc_narrowed << " must be in [-1, 1] (-1 = off)";
   } else if (!(epsilon_px > 0.0) || !std::isfinite(epsilon_px)) {
     msg << "matcher.epsilon_px = " << epsilon_px << " must be finite and > 0";
-  } else if (num_threads < 0) {
-    msg << "matcher.num_threads = " << num_threads << " must be >= 0 (0 = OpenCV's default)";
+  } else if (num_threads < 0 || num_threads > kMaxNumThreads) {
+    // Bounded above: oneTBB (behind cv::setNumThreads) crashes when the count goes back down
+    // from more than 65536 (found by fuzzing), and a huge arena costs memory for nothing.
+    msg << "matcher.num_threads = " << num_threads << " must be in [0, " << kMaxNumThreads
+        << "] (0 = OpenCV's default)";
   } else if (edge_window_max_px < 0) {
     msg << "matcher.edge_window_max_px = " << edge_window_max_px << " must be >= 0 (0 = off)";
   } else if (!(edge_disparity_jump_px >= 0.0) || !std::isfinite(edge_disparity_jump_px)) {

@@ -379,6 +379,9 @@ std::string loadPipelineParamsFromString(const std::string& yaml_text, PipelineP
   if (root.IsNull()) return {};  // an empty file changes nothing
   if (!root.IsMap()) return source + ": expected a map of sections (matcher:, filter:, ...)";
   PipelineParams candidate = params;
+  // yaml-cpp throws on keys that are not scalars (a map as a key, found by fuzzing): refused
+  // with a message like every other malformed file.
+  try {
   for (const auto& section_node : root) {
     const std::string section = section_node.first.as<std::string>();
     if (section == "ros") continue;  // the nodelet's own settings (see params_io.hpp)
@@ -398,6 +401,9 @@ std::string loadPipelineParamsFromString(const std::string& yaml_text, PipelineP
       const std::string err = setPipelineParam(candidate, key, kv.second.Scalar());
       if (!err.empty()) return source + ": " + err;
     }
+  }
+  } catch (const YAML::Exception& ex) {
+    return source + ": malformed parameter file: " + ex.what();
   }
   params = candidate;
   return {};

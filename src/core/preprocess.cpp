@@ -141,6 +141,10 @@ bool convertImage(const cv::Mat& raw, const std::string& e, int mono16_bits, cv:
     raw.copyTo(gray);
     if (bgr) cv::cvtColor(raw, *bgr, cv::COLOR_GRAY2BGR);
   } else if (e == "mono16" || e == "16UC1") {
+    if (mono16_bits < 8 || mono16_bits > 16) {
+      return fail(error, "preprocess.mono16_bits: must be in [8, 16], got " +
+                             std::to_string(mono16_bits));
+    }
     // Keep the top 8 significant bits of an N-bit value (a 12-bit camera would otherwise be dark).
     raw.convertTo(gray, CV_8U, 1.0 / double(1 << (mono16_bits - 8)));
     if (bgr) cv::cvtColor(gray, *bgr, cv::COLOR_GRAY2BGR);

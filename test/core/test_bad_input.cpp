@@ -450,6 +450,58 @@ TEST(FuzzOpenCvStereo, EmptyKeyIsAnErrorNotAnException) {
   EXPECT_NE(error.find(path), std::string::npos) << "message does not name the file: " << error;
 }
 
+// Found by fuzz_opencv_stereo: a corrupted matrix header ("rows: 2147483647" in T) made
+// cv::read() allocate rows x cols (16 GB) before it compared them with the three values given:
+// out of memory under the fuzzer, a multi-gigabyte allocation or std::bad_alloc in a tool. The
+// loader now checks the declared shape against the data first and names the field.
+TEST(FuzzOpenCvStereo, ImpossibleMatrixShapeIsRefusedBeforeAllocating) {
+  const std::string path = "/tmp/test_bad_input_shape_" + std::to_string(::getpid()) + ".yaml";
+  auto write = [&](const std::string& t_block) {
+    std::ofstream os(path);
+    os << "%YAML:1.0\n---\nimage_width: 64\nimage_height: 48\n";
+    for (const char* m : {"M1", "M2"}) {
+      os << m << ": !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+         << "   data: [ 80., 0., 32., 0., 80., 24., 0., 0., 1. ]\n";
+    }
+    os << "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+       << "   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n";
+    os << "T: !!opencv-matrix\n" << t_block << "   dt: d\n   data: [ -0.005, 0., 0. ]\n";
+  };
+  StereoCalibration calib;
+  std::string error;
+  write("   rows: 2147483647\n   cols: 1\n");
+  EXPECT_FALSE(loadOpenCvStereoYaml(path, calib, &error));
+  EXPECT_NE(error.find("T: rows = 2147483647"), std::string::npos) << error;
+  write("   rows: 8\n   cols: 8\n");  // within the side limit, but 64 elements for 3 values
+  EXPECT_FALSE(loadOpenCvStereoYaml(path, calib, &error));
+  EXPECT_NE(error.find("T: declares 64 elements but holds 3 values"), std::string::npos) << error;
+  write("   rows: 3\n   cols: 1\n");  // the same file with a sane header loads
+  const bool ok = loadOpenCvStereoYaml(path, calib, &error);
+  ::unlink(path.c_str());
+  EXPECT_TRUE(ok) << error;
+}
+
+// Found by fuzz_opencv_stereo: a NUL byte inside an XML attribute made OpenCV 4.6's XML parser
+// dereference a null pointer (SIGSEGV in cv::FileStorage::open, no exception to catch). The loader
+// refuses a file with a NUL byte before the parser sees it.
+TEST(FuzzOpenCvStereo, NulByteIsRefusedBeforeTheParser) {
+  const std::string path = "/tmp/test_bad_input_nul_" + std::to_string(::getpid()) + ".xml";
+  {
+    std::ofstream os(path, std::ios::binary);
+    const std::string text = std::string("<?xml version=\"1.0\"?>\n<opencv_storage>\n") +
+                             "<T type_id=" + std::string(1, '\0') +
+                             "\"opencv-matrix\"><rows>3</rows><cols>1</cols><dt>d</dt>"
+                             "<data>-0.005 0. 0.</data></T>\n</opencv_storage>\n";
+    os.write(text.data(), static_cast<std::streamsize>(text.size()));
+  }
+  StereoCalibration calib;
+  std::string error;
+  const bool ok = loadOpenCvStereoYaml(path, calib, &error);
+  ::unlink(path.c_str());
+  EXPECT_FALSE(ok);
+  EXPECT_NE(error.find("NUL byte at offset 50"), std::string::npos) << error;
+}
+
 // --- Time -------------------------------------------------------------------------------------------
 
 TEST(BadTime, TimeGoingBackResetsTheTemporalState) {
@@ -530,6 +582,10 @@ TEST(BadParams, InvalidParamsAreRefusedByNameAndTheOldOnesKept) {
       {"filter.outlier_window_px", "2"}, {"filter.outlier_min_share", "1.5"},
       {"filter.fill_max_hole_px", "9"},  {"preprocess.downsample", "3"},
       {"temporal.prior_radius_px", "0"}, {"temporal.max_gap_s", "-1"},
+      // Found by fuzzing: oneTBB crashed when the thread count went back down from > 65536.
+      {"matcher.num_threads", "100000"}, {"matcher.num_threads", "-1"},
+      // Found by fuzzing: min - max overflowed int and the range passed validation.
+      {"matcher.min_disparity", "-2147483648"},
   };
   Pipeline pipeline(passThroughParams());
   double stamp = 1.0;
@@ -563,8 +619,24 @@ TEST(BadParams, MalformedValuesAreRefusedByTheLoader) {
   EXPECT_NE(loadPipelineParamsFromString("matcher: [1, 2]", p), "");
   EXPECT_NE(loadPipelineParamsFromString("matcher: {window_min_px: {a: 1}}", p), "");
   EXPECT_NE(loadPipelineParamsFromString("{{{", p), "");
+  // Found by fuzzing: a map as a key made yaml-cpp throw out of the loader.
+  EXPECT_NE(loadPipelineParamsFromString(std::string("{{}}0\x03"), p), "");
+  EXPECT_NE(loadPipelineParamsFromString("{a: 1}: {b: 2}", p), "");
   EXPECT_EQ(pipelineParamsToYaml(p), pipelineParamsToYaml(PipelineParams()))
       << "a refused load or override changed the params";
+}
+
+TEST(BadParams, Mono16BitsOutsideItsRangeIsRefusedNotShifted) {
+  // Found by fuzzing: an out-of-range bit count was an undefined shift in convertImage().
+  const cv::Mat raw(4, 4, CV_16UC1, cv::Scalar(1000));
+  cv::Mat gray;
+  std::string error;
+  for (const int bits : {7, 17, 40, -3}) {
+    EXPECT_FALSE(convertImage(raw, "mono16", bits, gray, nullptr, &error)) << bits;
+    EXPECT_NE(error.find("mono16_bits"), std::string::npos) << error;
+  }
+  EXPECT_TRUE(convertImage(raw, "mono16", 12, gray, nullptr, &error)) << error;
+  EXPECT_EQ(gray.at<uint8_t>(0, 0), 1000 / 16);
 }
 
 }  // namespace

@@ -115,6 +115,22 @@ inline std::string valueText(FuzzedDataProvider& fdp, const ParamInfo& info) {
   }
 }
 
+/// Largest matcher.num_threads a harness lets through to RobustMatcher::compute().
+constexpr int kMaxFuzzThreads = 4;
+
+/// matcher.num_threads goes to the process-wide cv::setNumThreads() for the duration of
+/// compute(). With Debian's OpenCV 4.6 on oneTBB, setting it back after a value above 65536
+/// segfaults inside libtbbmalloc (in any build: reproduced without sanitizers, see
+/// test/fuzz/regressions/matcher/num_threads_over_65536), and every large value builds a TBB
+/// arena with that many slots (1.2 GB peak RSS under ASan). MatcherParams::validate() has no upper
+/// bound for it yet (reported to the matcher's owner), so the harnesses map a value above
+/// kMaxFuzzThreads to 1..kMaxFuzzThreads (the output does not depend on it); negative values are
+/// left alone for the validate() checks. Once validate() bounds it, a unit test covers the bound.
+inline void boundThreadCount(PipelineParams& params) {
+  int& n = params.matcher.num_threads;
+  if (n > kMaxFuzzThreads) n = 1 + n % kMaxFuzzThreads;
+}
+
 /// Apply up to @p max_edits parameter edits decoded from the input (through params_io, so a bad
 /// value is rejected by setPipelineParam and only well-typed values reach the structs).
 inline void fuzzParams(FuzzedDataProvider& fdp, PipelineParams& params, int max_edits) {
@@ -125,6 +141,7 @@ inline void fuzzParams(FuzzedDataProvider& fdp, PipelineParams& params, int max_
     const ParamInfo& info = infos[fdp.ConsumeIntegralInRange<size_t>(0, infos.size() - 1)];
     setPipelineParam(params, info.key, valueText(fdp, info));  // an error keeps the old value
   }
+  boundThreadCount(params);
 }
 
 /// OpenCV types an image may arrive in (the supported ones and a few that are not).

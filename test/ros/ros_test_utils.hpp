@@ -2,19 +2,22 @@
  * @file ros_test_utils.hpp
  * @brief Helpers of the rostest gtest nodes: collect messages and wait for one that matches with
  * a timeout (never a fixed sleep that can hang), read endo_stereo's diagnostics, build stereo
- * input messages from a synthetic surgical frame.
+ * input messages from a synthetic surgical frame, re-publish an input until its result arrives,
+ * and the main() every rostest gtest node shares.
  *
- * The test main() starts a ros::AsyncSpinner, so callbacks run while a test waits.
+ * The test main() (runRosGtests) starts a ros::AsyncSpinner, so callbacks run while a test waits.
  */
 #pragma once
 
 #include <condition_variable>
 #include <functional>
+#include <map>
 #include <mutex>
 #include <string>
 #include <vector>
 
 #include <diagnostic_msgs/DiagnosticArray.h>
+#include <gtest/gtest.h>
 #include <ros/ros.h>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -92,6 +95,36 @@ inline bool waitUntil(const std::function<bool()>& cond, double timeout_s) {
     ros::WallDuration(0.02).sleep();
   }
   return false;
+}
+
+/// Call @p publish_once, then wait up to @p period_s for @p done; repeat until @p done holds,
+/// @p timeout_s passes or (when @p max_publishes > 0) @p max_publishes inputs were sent. Robust
+/// to the latency of a lazy subscription and to a camera_info that arrives after the first images.
+/// @return whether @p done held.
+inline bool publishUntil(const std::function<void()>& publish_once,
+                         const std::function<bool()>& done, double timeout_s,
+                         double period_s = 0.25, int max_publishes = 0) {
+  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(timeout_s);
+  for (int sent = 0; ros::ok() && ros::WallTime::now() < deadline &&
+                     (max_publishes <= 0 || sent < max_publishes);
+       ++sent) {
+    publish_once();
+    if (waitUntil(done, period_s)) return true;
+  }
+  return done();
+}
+
+/// The main() of a rostest gtest node named @p node_name: gtest and ROS initialised, callbacks
+/// served by a two-thread AsyncSpinner while the tests wait. @return RUN_ALL_TESTS()'s status.
+inline int runRosGtests(int argc, char** argv, const std::string& node_name) {
+  testing::InitGoogleTest(&argc, argv);
+  ros::init(argc, argv, node_name);
+  ros::NodeHandle nh;
+  ros::AsyncSpinner spinner(2);
+  spinner.start();
+  const int rc = RUN_ALL_TESTS();
+  ros::shutdown();
+  return rc;
 }
 
 /// The key/value pairs of the status of the nodelet @p nodelet_name ("/stereo/reconstruction")

@@ -137,12 +137,5 @@ TEST(BagPlayback, EveryPairAccountedForAndStampsPreserved) {
 }  // namespace endo_stereo
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "test_nodelet_bag");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  ros::shutdown();
-  return rc;
+  return endo_stereo::test::runRosGtests(argc, argv, "test_nodelet_bag");
 }

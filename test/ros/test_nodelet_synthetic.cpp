@@ -104,14 +104,13 @@ ros::Time nextStamp() {
 /// the latency of a lazy subscription and to camera_info arriving after the first pair.
 bool publishUntil(StereoPublisher& pub, const std::function<bool()>& done, double timeout_s,
                   ros::Time* last_stamp = nullptr, double period_s = 0.25) {
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(timeout_s);
-  while (ros::ok() && ros::WallTime::now() < deadline) {
-    const ros::Time t = nextStamp();
-    if (last_stamp) *last_stamp = t;
-    pub.publishPair(t);
-    if (waitUntil(done, period_s)) return true;
-  }
-  return done();
+  return test::publishUntil(
+      [&] {
+        const ros::Time t = nextStamp();
+        if (last_stamp) *last_stamp = t;
+        pub.publishPair(t);
+      },
+      done, timeout_s, period_s);
 }
 
 float at(const stereo_msgs::DisparityImage& msg, int r, int c) {
@@ -338,14 +337,13 @@ TEST(ApproximateSync, PairsStampsWithinTheTolerance) {
   pub.publishGoodInfo();
   // Right stamps 4 ms after the left ones (tolerance 10 ms in the .test file).
   std::vector<ros::Time> lefts;
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(30.0);
-  bool got = false;
-  while (!got && ros::WallTime::now() < deadline) {
-    const ros::Time t = nextStamp();
-    lefts.push_back(t);
-    pub.publishPair(t, t + ros::Duration(0.004));
-    got = waitUntil([&] { return disparities.count() > 0; }, 0.25);
-  }
+  const bool got = test::publishUntil(
+      [&] {
+        const ros::Time t = nextStamp();
+        lefts.push_back(t);
+        pub.publishPair(t, t + ros::Duration(0.004));
+      },
+      [&] { return disparities.count() > 0; }, 30.0, 0.25);
   ASSERT_TRUE(got) << "approximate sync never paired stamps 4 ms apart";
   // Outputs carry the left image's stamp.
   const ros::Time out = disparities.all().front()->header.stamp;
@@ -516,13 +514,13 @@ TEST(CompressedTransport, NodeletTakesCompressedImages) {
                         10.0));
   li.publish(s.left_info);
   ri.publish(s.right_info);
-  const ros::WallTime deadline = ros::WallTime::now() + ros::WallDuration(60.0);
-  while (disparities.count() == 0 && ros::WallTime::now() < deadline) {
-    const ros::Time t = nextStamp();
-    left.publish(test::imageMsg(s.frame.left, "bgr8", t, s.left_info.header.frame_id));
-    right.publish(test::imageMsg(s.frame.right, "bgr8", t, s.right_info.header.frame_id));
-    waitUntil([&] { return disparities.count() > 0; }, 1.0);
-  }
+  test::publishUntil(
+      [&] {
+        const ros::Time t = nextStamp();
+        left.publish(test::imageMsg(s.frame.left, "bgr8", t, s.left_info.header.frame_id));
+        right.publish(test::imageMsg(s.frame.right, "bgr8", t, s.right_info.header.frame_id));
+      },
+      [&] { return disparities.count() > 0; }, 60.0, 1.0);
   ASSERT_GT(disparities.count(), 0u) << "no disparity from compressed input";
   auto d = disparities.all().front();
   int64_t valid = 0;
@@ -591,12 +589,5 @@ TEST(TargetFrame, CloudIsTransformedOrWithheldWithAWarning) {
 }  // namespace endo_stereo
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "test_nodelet_synthetic");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  ros::shutdown();
-  return rc;
+  return endo_stereo::test::runRosGtests(argc, argv, "test_nodelet_synthetic");
 }

@@ -51,14 +51,16 @@ TEST(RegistrationClient, ConvergesOnTheSyntheticScene) {
   // frame it renders as reference. Another frame follows only if no result came (e.g. the
   // camera_info reached the nodelet after the first pair).
   SurgicalFrame frame;
-  bool got = false;
-  for (int k = 0; k < 5 && !got; ++k) {
-    scene.render(k, frame);
-    const ros::Time stamp(start_time + k / p.fps);
-    left.publish(test::imageMsg(frame.left, "bgr8", stamp, li.header.frame_id));
-    right.publish(test::imageMsg(frame.right, "bgr8", stamp, ri.header.frame_id));
-    got = waitUntil([&] { return rms.count() > 0; }, 20.0);
-  }
+  int k = 0;
+  const bool got = test::publishUntil(
+      [&] {
+        scene.render(k, frame);
+        const ros::Time stamp(start_time + k / p.fps);
+        left.publish(test::imageMsg(frame.left, "bgr8", stamp, li.header.frame_id));
+        right.publish(test::imageMsg(frame.right, "bgr8", stamp, ri.header.frame_id));
+        ++k;
+      },
+      [&] { return rms.count() > 0; }, 5 * 20.0, 20.0, 5);
   ASSERT_TRUE(got) << "no registration result";
   const double rms_m = rms.all().front()->data;
   std::printf("[ INFO     ] ICP RMS %.4f mm\n", rms_m * 1e3);
@@ -82,12 +84,5 @@ TEST(RegistrationClient, ConvergesOnTheSyntheticScene) {
 }  // namespace endo_stereo
 
 int main(int argc, char** argv) {
-  testing::InitGoogleTest(&argc, argv);
-  ros::init(argc, argv, "test_registration");
-  ros::NodeHandle nh;
-  ros::AsyncSpinner spinner(2);
-  spinner.start();
-  const int rc = RUN_ALL_TESTS();
-  ros::shutdown();
-  return rc;
+  return endo_stereo::test::runRosGtests(argc, argv, "test_registration");
 }

@@ -72,10 +72,11 @@ struct MatcherParams {
   double min_ncc_narrowed = 0.7;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
-  /// Worker threads; 0 = OpenCV's default. When > 0, cv::setNumThreads() is set to it for the
-  /// duration of compute() and restored after (a process-wide OpenCV setting). The output does not
-  /// depend on this value.
+  /// Worker threads, 0..kMaxNumThreads; 0 = OpenCV's default. When > 0, cv::setNumThreads() is
+  /// set to it for the duration of compute() and restored after (a process-wide OpenCV setting).
+  /// The output does not depend on this value.
   int num_threads = 0;
+  static constexpr int kMaxNumThreads = 256;
   // Ours, against window fattening at depth edges: see matcher.cpp and BENCHMARKS.md.
   /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity (its
   /// w_min window straddles one by the test below; 0 = no limit). Units px.
