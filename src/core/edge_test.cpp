@@ -546,8 +546,9 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
       if (anyBeats(a->a + i0, a->b + i0, a->c + i0, own + oy * K, split)) return false;
       if (split < K) {
         const TileSums* b = t[j][1];
-        if (anyBeats(b->a + i1 + split, b->b + i1 + split, b->c + i1 + split, own + oy * K + split,
-                     K - split)) {
+        // (i1 + split) first: i1 alone may be negative, and a pointer before the array is UB.
+        const int ib = i1 + split;
+        if (anyBeats(b->a + ib, b->b + ib, b->c + ib, own + oy * K + split, K - split)) {
           return false;
         }
       }
