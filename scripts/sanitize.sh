@@ -119,13 +119,14 @@ case "$mode" in
     # OpenCV's parallel_for_ runs on oneTBB, which is not instrumented: every hand-over between
     # the caller and a TBB worker is reported (thousands of false positives, seen here, in the
     # matcher's stripes and SIFT's keypoint vectors). So OpenCV runs serially in this run (the
-    # matcher's num_threads = 1, the SIFT rectification-quality check off, OPENCV_FOR_THREADS_NUM)
+    # nodelet calls cv::setNumThreads(0) when built with TSan, the matcher's num_threads = 0 keeps
+    # it, the SIFT rectification-quality check off)
     # and TSan watches the nodelet's own threads: ROS callbacks, the processing thread,
     # dynamic_reconfigure, diagnostics. The matcher's stripes are not covered by this run.
     OPENCV_FOR_THREADS_NUM=1 \
     TSAN_OPTIONS="halt_on_error=0:second_deadlock_stack=1:suppressions=$ES_ROOT/scripts/tsan.supp:log_path=$logs/tsan_report" \
     SOAK_FRAMES="${TSAN_FRAMES:-600}" SOAK_OUT="$logs" SOAK_LABEL=tsan_soak SOAK_TIMEOUT_S=1200 \
-      "$ES_ROOT/scripts/soak.sh" soak --param matcher/num_threads=1 \
+      "$ES_ROOT/scripts/soak.sh" soak --param matcher/num_threads=0 \
         --param rectify/quality_stride=1000000 --max-rss-growth-kb 100000000  # TSan's own memory grows
     rc=$?
     # Reports whose racing accesses are both inside uninstrumented libraries (roscpp's shared_ptr

@@ -3,6 +3,7 @@
 
 #include <stdexcept>
 
+#include <opencv2/core/utility.hpp>
 #include <pluginlib/class_list_macros.hpp>
 
 #include "endo_stereo/core/params_io.hpp"
@@ -20,6 +21,14 @@ ReconstructionNodelet::~ReconstructionNodelet() {
 void ReconstructionNodelet::onInit() {
   ros::NodeHandle& nh = getNodeHandle();
   ros::NodeHandle& pnh = getPrivateNodeHandle();
+#if defined(__SANITIZE_THREAD__)
+  // ThreadSanitizer build (make tsan): OpenCV's parallel_for_ runs on oneTBB, which is not
+  // instrumented, so every hand-over to a TBB worker would be reported as a race. OpenCV's
+  // sequential mode keeps TSan's view on the nodelet's own threads (callbacks, processing,
+  // reconfigure, diagnostics, background quality check).
+  cv::setNumThreads(0);
+  NODELET_WARN("ThreadSanitizer build: OpenCV runs sequentially (cv::setNumThreads(0))");
+#endif
 
   RosParams ros_params;
   PipelineParams params;
