@@ -1037,80 +1037,62 @@ inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
   s.col_row[x] = y;
 }
 
-/// Carry the hot columns to row y by running sums; drop those not used for a few rows (a column
-/// used once should not be carried for the rest of the stripe: a running step costs 2 products
-/// per disparity, a fresh sum w).
-ES_KERNEL void hotRunning(int count, const int* __restrict cols, int width, int rev_pad, int dmin,
-                          int dp, const int* __restrict k0, const int* __restrict k1,
-                          const float* __restrict l_in, const float* __restrict r_in,
-                          const float* __restrict l_out, const float* __restrict r_out,
+/// Running update of the hot columns from row y - 1 to row y. Column x holds sums of
+/// scalar(y', x) * run(y', base0 + step * x + k) over the window's rows: the left-indexed sums
+/// (scalar L, run the mirrored R, step -1) and the right-indexed ones (scalar R, run the padded L,
+/// step +1) share it.
+ES_KERNEL void hotRunning(int count, const int* __restrict cols, int base0, int step, int dp,
+                          const int* __restrict k0, const int* __restrict k1,
+                          const float* __restrict s_in, const float* __restrict v_in,
+                          const float* __restrict s_out, const float* __restrict v_out,
                           float* __restrict colsum) {
   for (int i = 0; i < count; ++i) {
     const int x = cols[i];
     const int a = k0[x], n = k1[x] - a + 1;
     float* __restrict cs = colsum + static_cast<size_t>(x) * dp + a;
-    const int base = rev_pad + width - 1 - x + dmin + a;
-    const float li = l_in[x], lo = l_out[x];
-    const float* __restrict ri = r_in + base;
-    const float* __restrict ro = r_out + base;
-    for (int k = 0; k < n; ++k) cs[k] += li * ri[k] - lo * ro[k];
+    const int base = base0 + step * x + a;
+    const float si = s_in[x], so = s_out[x];
+    const float* __restrict vi = v_in + base;
+    const float* __restrict vo = v_out + base;
+    for (int k = 0; k < n; ++k) cs[k] += si * vi[k] - so * vo[k];
   }
 }
 
-void updateHotColumns(const LevelContext& c, Scratch& s, int y) {
+/// Carry the hot columns of one set of column sums to row y; drop those not used for a few rows
+/// (a column used once should not be carried for the rest of the stripe: a running step costs 2
+/// products per disparity, a fresh sum w).
+void carryHotColumns(const LevelContext& c, int y, std::vector<int>& hot, std::vector<int>& row,
+                     const std::vector<int>& used, const std::vector<int>& k0,
+                     const std::vector<int>& k1, std::vector<float>& colsum, int dp,
+                     const cv::Mat& scalar_img, const cv::Mat& run_img, int base0, int step) {
   const int keep = std::max(2, c.w / 4);
   size_t out = 0;
-  for (size_t i = 0; i < s.hot.size(); ++i) {
-    const int x = s.hot[i];
-    if (s.col_row[x] != y - 1 || y - s.col_used[x] > keep) continue;
-    s.col_row[x] = y;
-    s.hot[out++] = x;
+  for (size_t i = 0; i < hot.size(); ++i) {
+    const int x = hot[i];
+    if (row[x] != y - 1 || y - used[x] > keep) continue;
+    row[x] = y;
+    hot[out++] = x;
   }
-  s.hot.resize(out);
+  hot.resize(out);
   if (out == 0) return;
   const int r = c.r;
-  hotRunning(static_cast<int>(out), s.hot.data(), c.width, c.im->rev_pad, c.dmin, s.dpad,
-             s.col_k0.data(), s.col_k1.data(), c.im->lf.ptr<float>(y + r),
-             c.im->rf_rev.ptr<float>(y + r), c.im->lf.ptr<float>(y - r - 1),
-             c.im->rf_rev.ptr<float>(y - r - 1), s.colsum.data());
+  hotRunning(static_cast<int>(out), hot.data(), base0, step, dp, k0.data(), k1.data(),
+             scalar_img.ptr<float>(y + r), run_img.ptr<float>(y + r),
+             scalar_img.ptr<float>(y - r - 1), run_img.ptr<float>(y - r - 1), colsum.data());
+}
+
+// Left-indexed column sums: L(y', x) the scalar, R(y', x - d) read mirrored (rf_rev).
+void updateHotColumns(const LevelContext& c, Scratch& s, int y) {
+  carryHotColumns(c, y, s.hot, s.col_row, s.col_used, s.col_k0, s.col_k1, s.colsum, s.dpad,
+                  c.im->lf, c.im->rf_rev, c.im->rev_pad + c.width - 1 + c.dmin, -1);
 }
 
 // Right-indexed column sums (see Scratch::colsum_r): the same three ways to make a column valid
 // (kept, one row in and one out, afresh), the same hot-column carrying. R(y', q) is the scalar,
 // L(y', q + d) for increasing d the contiguous run (lf_pad).
-ES_KERNEL void hotRunningR(int count, const int* __restrict cols, int l_pad, int dmin, int dp,
-                           const int* __restrict k0, const int* __restrict k1,
-                           const float* __restrict r_in, const float* __restrict l_in,
-                           const float* __restrict r_out, const float* __restrict l_out,
-                           float* __restrict colsum) {
-  for (int i = 0; i < count; ++i) {
-    const int q = cols[i];
-    const int a = k0[q], n = k1[q] - a + 1;
-    float* __restrict cs = colsum + static_cast<size_t>(q) * dp + a;
-    const int base = l_pad + q + dmin + a;
-    const float ri = r_in[q], ro = r_out[q];
-    const float* __restrict li = l_in + base;
-    const float* __restrict lo = l_out + base;
-    for (int k = 0; k < n; ++k) cs[k] += ri * li[k] - ro * lo[k];
-  }
-}
-
 void updateHotColumnsR(const LevelContext& c, Scratch& s, int y) {
-  const int keep = std::max(2, c.w / 4);
-  size_t out = 0;
-  for (size_t i = 0; i < s.hot_r.size(); ++i) {
-    const int q = s.hot_r[i];
-    if (s.colr_row[q] != y - 1 || y - s.colr_used[q] > keep) continue;
-    s.colr_row[q] = y;
-    s.hot_r[out++] = q;
-  }
-  s.hot_r.resize(out);
-  if (out == 0) return;
-  const int r = c.r;
-  hotRunningR(static_cast<int>(out), s.hot_r.data(), c.im->l_pad, c.dmin, s.dpad,
-              s.colr_k0.data(), s.colr_k1.data(), c.im->rf.ptr<float>(y + r),
-              c.im->lf_pad.ptr<float>(y + r), c.im->rf.ptr<float>(y - r - 1),
-              c.im->lf_pad.ptr<float>(y - r - 1), s.colsum_r.data());
+  carryHotColumns(c, y, s.hot_r, s.colr_row, s.colr_used, s.colr_k0, s.colr_k1, s.colsum_r,
+                  s.dpad, c.im->rf, c.im->lf_pad, c.im->l_pad + c.dmin, +1);
 }
 
 /// Make right column q's sums valid for row y on disparity indices [k0, k1] (whole 8-lane groups).
