@@ -1703,11 +1703,14 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // rows compute them where needed.
   std::vector<int>& open = (*c.open_rows)[y];
   if (c.level == 0) {
-    open.clear();
+    open.resize(W);
+    int n = 0;
     for (int x = r; x < W - r; ++x) {
-      if (rlo[x] <= rhi[x]) open.push_back(x);
+      open[n] = x;
+      n += rlo[x] <= rhi[x];
     }
-    (*c.n_req_rows)[y] = static_cast<int>(open.size());
+    open.resize(n);
+    (*c.n_req_rows)[y] = n;
   } else {
     // Drop the pixels accepted with the smaller windows and those the larger window's border
     // excludes (it only grows).
@@ -1725,10 +1728,10 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
     // matched themselves (their ranges bound the right-to-left profiles).
-    int* elo_i = s.elo_i.data();
-    int* ehi_i = s.ehi_i.data();
-    float* elo = s.elo.data();
-    float* ehi = s.ehi.data();
+    int* __restrict elo_i = s.elo_i.data();
+    int* __restrict ehi_i = s.ehi_i.data();
+    float* __restrict elo = s.elo.data();
+    float* __restrict ehi = s.ehi.data();
     for (int x = 0; x < W; ++x) {
       const bool inside = (x >= r) & (x < W - r);
       int lo = std::max(rlo[x], x - (W - 1 - r));
@@ -1767,24 +1770,53 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // Active = open, effective range of at least 3 values (an interior maximum needs two
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
-  for (const int x : open) {
-    int lo, hi;
-    if (!effectiveRange(c, x, y, &lo, &hi)) continue;
-    if (hi - lo < 2) {
-      code[x] = kCodeNoPeak;
-      continue;
+  if (dense) {
+    // Branch-free over the row: the effective ranges and structure values are all at hand.
+    s.active.resize(n_open);
+    int* act_list = s.active.data();
+    int na = 0;
+    const int* __restrict elo_i = s.elo_i.data();
+    const int* __restrict ehi_i = s.ehi_i.data();
+    const float* __restrict gl = s.maps.gamma_l.data();
+    for (const int x : open) {
+      const int lo = elo_i[x], hi = ehi_i[x];
+      const bool searched = lo <= hi;  // else outside the matchable area: code stays
+      const bool narrow = hi - lo < 2;
+      const bool flat = !(gl[x] > gmin);
+      const uint8_t keep = code[x];
+      code[x] = !searched ? keep
+                          : (narrow ? uint8_t{kCodeNoPeak}
+                                    : (flat ? uint8_t{kCodeRejectStructure} : keep));
+      act_list[na] = x;
+      na += searched & !narrow & !flat;
     }
-    if (!dense) needGammaL(c, s, x, y);
-    if (!(s.maps.gamma_l[x] > gmin)) {
-      code[x] = kCodeRejectStructure;
-      continue;
+    s.active.resize(na);
+    if (na == 0) return;
+    std::fill(s.best.begin(), s.best.begin() + W, kNegInf);
+    std::fill(s.second.begin(), s.second.begin() + W, kNegInf);
+    std::fill(s.best_d.begin(), s.best_d.begin() + W, 0.f);
+    std::fill(s.best_l.begin(), s.best_l.begin() + W, 0.f);
+    std::fill(s.best_r.begin(), s.best_r.begin() + W, 0.f);
+  } else {
+    for (const int x : open) {
+      int lo, hi;
+      if (!effectiveRange(c, x, y, &lo, &hi)) continue;
+      if (hi - lo < 2) {
+        code[x] = kCodeNoPeak;
+        continue;
+      }
+      needGammaL(c, s, x, y);
+      if (!(s.maps.gamma_l[x] > gmin)) {
+        code[x] = kCodeRejectStructure;
+        continue;
+      }
+      s.active.push_back(x);
     }
-    s.active.push_back(x);
-  }
-  if (s.active.empty()) return;
-  for (int x : s.active) {
-    s.best[x] = s.second[x] = kNegInf;
-    s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
+    if (s.active.empty()) return;
+    for (int x : s.active) {
+      s.best[x] = s.second[x] = kNegInf;
+      s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
+    }
   }
 
   const float delta_min = static_cast<float>(c.mp->delta_min);
@@ -1803,19 +1835,21 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   };
   if (dense) {
     std::fill(s.act.begin(), s.act.begin() + W, 0.f);
-    for (int x : s.active) {
-      s.act[x] = 1.f;
-      s.p1[x] = s.p2[x] = kNegInf;
-    }
+    std::fill(s.p1.begin(), s.p1.begin() + W, kNegInf);
+    std::fill(s.p2.begin(), s.p2.begin() + W, kNegInf);
+    for (int x : s.active) s.act[x] = 1.f;
     std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
     std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
     if (c.uniform_ranges) {
       denseLanesRow(c, s, y);
     } else {
-      s.pick.clear();
+      s.pick.resize(W);
+      int np = 0;
       for (int x = r; x < W - r; ++x) {
-        if (s.elo_i[x] <= s.ehi_i[x]) s.pick.push_back(x);
+        s.pick[np] = x;
+        np += s.elo_i[x] <= s.ehi_i[x];
       }
+      s.pick.resize(np);
       buildIntervals(c, s, s.pick);
       for (int k = 0; k < nd; ++k) {
         denseSlices(c, s, k, y, s.ivs.data() + s.iv_start[k], s.iv_start[k + 1] - s.iv_start[k]);
@@ -1847,6 +1881,40 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   uint8_t* stw = c.state->ptr<uint8_t>(y);
   uint8_t* widx = c.window_idx->ptr<uint8_t>(y);
   const float eps = static_cast<float>(c.mp->epsilon_px);
+  if (dense) {
+    // The same decisions without branches on the criteria (every value is at hand in a dense
+    // row; a pixel without a peak has best_d 0, so its reads stay inside the row).
+    const uint8_t accepted = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
+    const bool subpixel = c.mp->subpixel;
+    for (const int x : s.active) {
+      const float b = s.best[x];
+      const int bd = static_cast<int>(s.best_d[x]);
+      const int q = x - bd;
+      const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
+      const float delta = b - comp;
+      const bool no_peak = b == kNegInf;
+      const bool flat = !(s.maps.gamma_r[q] > gmin);
+      const bool gap = !(delta > delta_min) || b < minNcc(x);
+      const bool lr = !(std::fabs(static_cast<float>(bd) - s.rb_d[q]) < eps);
+      const uint8_t cd = no_peak ? uint8_t{kCodeNoPeak}
+                         : flat  ? uint8_t{kCodeRejectStructure}
+                         : gap   ? uint8_t{kCodeRejectPeakGap}
+                         : lr    ? uint8_t{kCodeRejectLeftRight}
+                                 : accepted;
+      code[x] = cd;
+      if (cd != accepted) continue;
+      float sub = 0.f;
+      if (subpixel) {
+        const float den = s.best_l[x] - 2.f * b + s.best_r[x];
+        if (den < 0.f) sub = std::clamp(0.5f * (s.best_l[x] - s.best_r[x]) / den, -0.5f, 0.5f);
+      }
+      disp[x] = static_cast<float>(bd) + sub;
+      conf[x] = std::clamp(delta, 0.f, 1.f);
+      stw[x] = 1;
+      widx[x] = static_cast<uint8_t>(c.level);
+    }
+    return;
+  }
   for (int x : s.active) {
     if (s.best[x] == kNegInf) {
       code[x] = kCodeNoPeak;
@@ -2023,38 +2091,33 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   im.open_rows.resize(H);
   im.n_req_rows.assign(H, 0);
   const int num_stripes = (H + kStripeRows - 1) / kStripeRows;
+  std::vector<LevelContext> levels;
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
-    const LevelContext c{&mp,
-                         &im,
-                         uniform,
-                         level,
-                         w,
-                         w / 2,
-                         W,
-                         H,
-                         mp.min_disparity,
-                         mp.max_disparity,
-                         &im.state,
-                         &im.window_idx,
-                         &im.open_rows,
-                         &im.n_req_rows,
-                         &out};
-    cv::parallel_for_(
-        cv::Range(0, num_stripes),
-        [&](const cv::Range& rg) {
-          std::unique_ptr<Scratch> s = im.acquire();
-          s->ensure(W, nd);
-          for (int stripe = rg.start; stripe < rg.end; ++stripe) {
+    levels.push_back(LevelContext{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity,
+                                  mp.max_disparity, &im.state, &im.window_idx, &im.open_rows,
+                                  &im.n_req_rows, &out});
+  }
+  // A row's window sizes depend only on that row (its open pixels, its requested ranges and the
+  // images), so each stripe runs through all window sizes on its own: no barrier between window
+  // sizes, and the stripes' uneven costs (highlights and instrument edges need the larger
+  // windows) even out over the whole frame. Same rows, same order per row: same output.
+  cv::parallel_for_(
+      cv::Range(0, num_stripes),
+      [&](const cv::Range& rg) {
+        std::unique_ptr<Scratch> s = im.acquire();
+        s->ensure(W, nd);
+        for (int stripe = rg.start; stripe < rg.end; ++stripe) {
+          const int y_end = std::min(H, (stripe + 1) * kStripeRows);
+          for (const LevelContext& c : levels) {
             s->resetSums();
-            const int y_end = std::min(H, (stripe + 1) * kStripeRows);
             for (int y = stripe * kStripeRows; y < y_end; ++y) processRow(c, y, *s);
           }
-          im.release(std::move(s));
-        },
-        num_stripes);
-  }
+        }
+        im.release(std::move(s));
+      },
+      num_stripes);
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.tmp1, im.tmp2,
                          im.tmp3, im.tmp4, im.tmp5);

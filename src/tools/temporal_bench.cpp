@@ -49,6 +49,8 @@ Options:
   --params FILE.yaml  pipeline preset (matcher, filter, temporal sections are used)
   --set KEY=VALUE     override one parameter (repeatable), e.g. --set temporal.prior_radius_px=3
   --breakdown         per frame, where the bad pixels lie (instrument edge, highlight, ...)
+  --levels            per frame, our matcher's outcome with priors: pixels searched with a narrowed
+                      range, accepted per window size, rejected per criterion, match / filter ms
   --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
                       SGBM's MODE_SGBM runs on one thread whatever this says.
   --no-sgbm           skip the SGBM baseline
@@ -202,6 +204,7 @@ int main(int argc, char** argv) {
   endo_stereo::PipelineParams pp;
   int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
   bool breakdown = false;
+  bool levels = false;
   bool run_sgbm = true, run_without = true, pipeline_stages = false, pipeline_cloud = true;
   bool async_quality = false;
   std::string out_dir;
@@ -237,6 +240,8 @@ int main(int argc, char** argv) {
       params_file = next();
     } else if (a == "--set") {
       overrides.push_back(next());
+    } else if (a == "--levels") {
+      levels = true;
     } else if (a == "--breakdown") {
       breakdown = true;
     } else if (a == "--threads") {
@@ -417,6 +422,20 @@ int main(int argc, char** argv) {
                  "density %.1f%% | sgbm %7.1f ms\n",
                  i, ms_with, 100.0 * this_frame.bad2(), 100.0 * this_frame.density(), ms_without,
                  100.0 * this_frame_without.bad2(), 100.0 * this_frame_without.density(), ms_sgbm);
+    if (levels) {
+      const endo_stereo::MatchStats& st = res_with.stats;
+      std::string acc, rej;
+      for (size_t k = 0; k < st.accepted_per_window.size(); ++k) {
+        if (st.accepted_per_window[k]) acc += " w" + std::to_string(k) + "=" + std::to_string(st.accepted_per_window[k]);
+      }
+      static const char* kNames[] = {"unsearched", "structure", "gap", "lr", "edge", "outlier", "nopeak", "filled"};
+      for (size_t k = 0; k < st.rejected.size() && k < 8; ++k) {
+        rej += std::string(" ") + kNames[k] + "=" + std::to_string(st.rejected[k]);
+      }
+      std::fprintf(stderr, "  levels: narrowed %lld | accepted%s |%s | match %.1f ms filter %.1f ms\n",
+                   static_cast<long long>(st.prior_pixels), acc.c_str(), rej.c_str(), st.match_ms,
+                   st.filter_ms);
+    }
   }
   const endo_stereo::CoverageStats cov_with = tracker_with.coverage().stats();
   const endo_stereo::CoverageStats cov_without = tracker_without.coverage().stats();
