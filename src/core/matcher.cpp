@@ -495,9 +495,10 @@ struct FrameData {
   cv::Mat lf_pad;        // CV_32F lf with zero columns around it (right-indexed column sums)
   int l_pad = 0;         // columns of padding on the left of lf_pad
   cv::Mat int_l, int_r;  // CV_32S integral images of the 8-bit views
-  cv::Mat sq_l, sq_r;    // CV_64F integral images of their squares
-  cv::Mat lap_l, lap_r;  // CV_32F 3x3 Laplacian on 0..255
-  cv::Mat int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;  // CV_64F integrals of it and its square
+  cv::Mat lap_l, lap_r;  // CV_16S 3x3 Laplacian on 0..255 (|value| <= 1020)
+  // Integral images of the squares, of the Laplacian and of its square, CV_32S taken modulo
+  // 2^32 (wrappedIntegrals): read only through window differences (boxAt/boxRow), which are exact.
+  cv::Mat sq_l, sq_r, int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;
   cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
 };
 
@@ -565,13 +566,52 @@ struct LevelContext {
   MatchResult* out;
 };
 
-// Window box sum of an integral image at (x, y), half width r.
-template <typename T>
+// Window box sum of a CV_32S integral image at (x, y), half width r. The integral may have
+// wrapped modulo 2^32 (wrappedIntegrals): every window sum of this matcher (at most 32 x 32 terms
+// of magnitude <= 1020^2) lies in (-2^31, 2^31), so the four-corner difference taken modulo 2^32
+// is the exact sum.
 inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
-  const T* top = integral.ptr<T>(y - r);
-  const T* bot = integral.ptr<T>(y + r + 1);
-  return static_cast<double>(bot[x + r + 1]) - static_cast<double>(top[x + r + 1]) -
-         static_cast<double>(bot[x - r]) + static_cast<double>(top[x - r]);
+  const uint32_t* top = integral.ptr<uint32_t>(y - r);
+  const uint32_t* bot = integral.ptr<uint32_t>(y + r + 1);
+  return static_cast<double>(
+      static_cast<int32_t>((bot[x + r + 1] - top[x + r + 1]) - (bot[x - r] - top[x - r])));
+}
+
+/// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v^2 for the 8-bit
+/// image @p img and of g and g^2 for its Laplacian @p lap (CV_16S), all modulo 2^32: half the
+/// memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt/boxRow
+/// (see boxAt).
+void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::Mat& int_lap,
+                      cv::Mat& sq_lap) {
+  const int H = img.rows, W = img.cols;
+  sq.create(H + 1, W + 1, CV_32S);
+  int_lap.create(H + 1, W + 1, CV_32S);
+  sq_lap.create(H + 1, W + 1, CV_32S);
+  std::fill(sq.ptr<uint32_t>(0), sq.ptr<uint32_t>(0) + W + 1, 0u);
+  std::fill(int_lap.ptr<uint32_t>(0), int_lap.ptr<uint32_t>(0) + W + 1, 0u);
+  std::fill(sq_lap.ptr<uint32_t>(0), sq_lap.ptr<uint32_t>(0) + W + 1, 0u);
+  for (int y = 0; y < H; ++y) {
+    const uint8_t* v = img.ptr<uint8_t>(y);
+    const int16_t* g = lap.ptr<int16_t>(y);
+    const uint32_t* ps = sq.ptr<uint32_t>(y);
+    const uint32_t* pg = int_lap.ptr<uint32_t>(y);
+    const uint32_t* pq = sq_lap.ptr<uint32_t>(y);
+    uint32_t* os = sq.ptr<uint32_t>(y + 1);
+    uint32_t* og = int_lap.ptr<uint32_t>(y + 1);
+    uint32_t* oq = sq_lap.ptr<uint32_t>(y + 1);
+    uint32_t rs = 0, rg = 0, rq = 0;
+    os[0] = og[0] = oq[0] = 0;
+    for (int x = 0; x < W; ++x) {
+      const uint32_t vv = v[x];
+      const int32_t gg = g[x];
+      rs += vv * vv;
+      rg += static_cast<uint32_t>(gg);
+      rq += static_cast<uint32_t>(gg * gg);
+      os[x + 1] = ps[x + 1] + rs;
+      og[x + 1] = pg[x + 1] + rg;
+      oq[x + 1] = pq[x + 1] + rq;
+    }
+  }
 }
 
 /// Left statistics of column x of row y (inside the border), into s.maps. The same expressions
@@ -589,37 +629,37 @@ inline float gammaOf(double n, double sum, double sq) {
 
 inline void computeMapL(const LevelContext& c, Scratch& s, int x, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  const double sum = boxAt<int>(c.im->int_l, x, y, c.r);
-  const double sq = boxAt<double>(c.im->sq_l, x, y, c.r);
+  const double sum = boxAt(c.im->int_l, x, y, c.r);
+  const double sq = boxAt(c.im->sq_l, x, y, c.r);
   s.maps.mean_l[x] = static_cast<float>((sum - 128.0 * n) / n);
   s.maps.inv_l[x] = invStd(n, sum, sq);
 }
 inline void computeGammaL(const LevelContext& c, Scratch& s, int x, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  s.maps.gamma_l[x] = gammaOf(n, boxAt<double>(c.im->int_lap_l, x, y, c.r),
-                              boxAt<double>(c.im->sq_lap_l, x, y, c.r));
+  s.maps.gamma_l[x] = gammaOf(n, boxAt(c.im->int_lap_l, x, y, c.r),
+                              boxAt(c.im->sq_lap_l, x, y, c.r));
 }
 inline void computeMapR(const LevelContext& c, Scratch& s, int q, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  const double sum = boxAt<int>(c.im->int_r, q, y, c.r);
-  const double sq = boxAt<double>(c.im->sq_r, q, y, c.r);
+  const double sum = boxAt(c.im->int_r, q, y, c.r);
+  const double sq = boxAt(c.im->sq_r, q, y, c.r);
   s.maps.sum_r[q] = static_cast<float>(sum - 128.0 * n);
   s.maps.inv_r[q] = invStd(n, sum, sq);
 }
 inline void computeGammaR(const LevelContext& c, Scratch& s, int q, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  s.maps.gamma_r[q] = gammaOf(n, boxAt<double>(c.im->int_lap_r, q, y, c.r),
-                              boxAt<double>(c.im->sq_lap_r, q, y, c.r));
+  s.maps.gamma_r[q] = gammaOf(n, boxAt(c.im->int_lap_r, q, y, c.r),
+                              boxAt(c.im->sq_lap_r, q, y, c.r));
 }
 
-/// Box sums of one integral image for the windows of row y, columns [x0, x1], half width r.
-template <typename T>
+/// Box sums of one CV_32S (possibly wrapped) integral image for the windows of row y, columns
+/// [x0, x1], half width r: the same values as boxAt.
 ES_KERNEL void boxRow(const cv::Mat& integral, int y, int r, int x0, int x1, double* out) {
-  const T* top = integral.ptr<T>(y - r);
-  const T* bot = integral.ptr<T>(y + r + 1);
+  const uint32_t* __restrict top = integral.ptr<uint32_t>(y - r);
+  const uint32_t* __restrict bot = integral.ptr<uint32_t>(y + r + 1);
   for (int x = x0; x <= x1; ++x) {
-    out[x] = (static_cast<double>(bot[x + r + 1]) - static_cast<double>(top[x + r + 1])) -
-             (static_cast<double>(bot[x - r]) - static_cast<double>(top[x - r]));
+    out[x] = static_cast<double>(
+        static_cast<int32_t>((bot[x + r + 1] - top[x + r + 1]) - (bot[x - r] - top[x - r])));
   }
 }
 
@@ -694,12 +734,12 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
   const double n = static_cast<double>(c.w) * c.w;
   double* a = s.dbl_a.data();
   double* b = s.dbl_b.data();
-  boxRow<int>(c.im->int_l, y, r, x0, x1, a);
-  boxRow<double>(c.im->sq_l, y, r, x0, x1, b);
+  boxRow(c.im->int_l, y, r, x0, x1, a);
+  boxRow(c.im->sq_l, y, r, x0, x1, b);
   statsRow(x0, x1, n, a, b, s.maps.mean_l.data(), s.maps.inv_l.data(), true);
   invSqrtRow(x1 - x0 + 1, s.maps.inv_l.data() + x0);
-  boxRow<int>(c.im->int_r, y, r, x0, x1, a);
-  boxRow<double>(c.im->sq_r, y, r, x0, x1, b);
+  boxRow(c.im->int_r, y, r, x0, x1, a);
+  boxRow(c.im->sq_r, y, r, x0, x1, b);
   statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
   invSqrtRow(x1 - x0 + 1, s.maps.inv_r.data() + x0);
   if (!with_gamma) {
@@ -711,12 +751,12 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
     }
     return;
   }
-  boxRow<double>(c.im->int_lap_l, y, r, x0, x1, a);
-  boxRow<double>(c.im->sq_lap_l, y, r, x0, x1, b);
+  boxRow(c.im->int_lap_l, y, r, x0, x1, a);
+  boxRow(c.im->sq_lap_l, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_l.data());
   sqrtDivRow(x1 - x0 + 1, s.maps.gamma_l.data() + x0, static_cast<float>(n));
-  boxRow<double>(c.im->int_lap_r, y, r, x0, x1, a);
-  boxRow<double>(c.im->sq_lap_r, y, r, x0, x1, b);
+  boxRow(c.im->int_lap_r, y, r, x0, x1, a);
+  boxRow(c.im->sq_lap_r, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_r.data());
   sqrtDivRow(x1 - x0 + 1, s.maps.gamma_r.data() + x0, static_cast<float>(n));
 }
@@ -2042,17 +2082,17 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
             im.lf_pad.create(H, im.l_pad + W + pad_w, CV_32F);
             im.lf_pad.setTo(0.f);
             im.lf.copyTo(im.lf_pad(cv::Rect(im.l_pad, 0, W, H)));
-            cv::integral(left, im.int_l, im.sq_l, CV_32S, CV_64F);
-            cv::Laplacian(left, im.lap_l, CV_32F, 1);
-            cv::integral(im.lap_l, im.int_lap_l, im.sq_lap_l, CV_64F, CV_64F);
+            cv::integral(left, im.int_l, CV_32S);
+            cv::Laplacian(left, im.lap_l, CV_16S, 1);
+            wrappedIntegrals(left, im.lap_l, im.sq_l, im.int_lap_l, im.sq_lap_l);
           } else {
             right.convertTo(im.rf, CV_32F, 1.0, -128.0);
             im.rf_rev.create(H, im.rev_pad + W + pad_w, CV_32F);
             im.rf_rev.setTo(0.f);
             cv::flip(im.rf, im.rf_rev(cv::Rect(im.rev_pad, 0, W, H)), 1);
-            cv::integral(right, im.int_r, im.sq_r, CV_32S, CV_64F);
-            cv::Laplacian(right, im.lap_r, CV_32F, 1);
-            cv::integral(im.lap_r, im.int_lap_r, im.sq_lap_r, CV_64F, CV_64F);
+            cv::integral(right, im.int_r, CV_32S);
+            cv::Laplacian(right, im.lap_r, CV_16S, 1);
+            wrappedIntegrals(right, im.lap_r, im.sq_r, im.int_lap_r, im.sq_lap_r);
           }
         }
       },
