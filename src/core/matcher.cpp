@@ -124,7 +124,6 @@ struct Scratch {
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
   float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
-  std::vector<float> gather_s, gather_i;  // right statistics of one profile, contiguous
   std::vector<double> dbl_a, dbl_b;
   // Dense engine ("lanes over disparity"): vertical window sums of every column for the
   // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
@@ -226,8 +225,6 @@ struct Scratch {
     // 8 floats before (prof0[-1] is read, masked) and 16 after (whole groups past the end).
     prof.assign(dpad + 24, 0.f);
     prof0 = prof.data() + 8;
-    gather_s.assign(dpad + 16, 0.f);
-    gather_i.assign(dpad + 16, 0.f);
   }
   /// Forget all window sums (new stripe or new window size).
   void resetSums() {
@@ -759,6 +756,25 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
   boxRow(c.im->sq_lap_r, y, r, x0, x1, b);
   gammaRow(x0, x1, n, a, b, s.maps.gamma_r.data());
   sqrtDivRow(x1 - x0 + 1, s.maps.gamma_r.data() + x0, static_cast<float>(n));
+}
+
+/// Right NCC statistics of row y on columns [x0, x1] (inside the border), vectorised, with their
+/// mirrored copies, marked computed for this row: the same values needMapR gives one by one.
+void rowMapsR(const LevelContext& c, Scratch& s, int y, int x0, int x1) {
+  if (x0 > x1) return;
+  const double n = static_cast<double>(c.w) * c.w;
+  double* a = s.dbl_a.data();
+  double* b = s.dbl_b.data();
+  boxRow(c.im->int_r, y, c.r, x0, x1, a);
+  boxRow(c.im->sq_r, y, c.r, x0, x1, b);
+  statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  invSqrtRow(x1 - x0 + 1, s.maps.inv_r.data() + x0);
+  const int W = c.width;
+  for (int x = x0; x <= x1; ++x) {
+    s.maps.sum_r_rev[W - 1 - x] = s.maps.sum_r[x];
+    s.maps.inv_r_rev[W - 1 - x] = s.maps.inv_r[x];
+    s.maps.stamp_r[x] = s.stamp;
+  }
 }
 
 inline void needMapL(const LevelContext& c, Scratch& s, int x, int y) {
@@ -1595,7 +1611,19 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
     size_t j = i;
     while (j + 1 < na && s.active[j + 1] <= s.active[j] + c.w) ++j;
     const int a = s.active[i], b = s.active[j];
-    if (!c.uniform_ranges) runRequests(c, s, y, i, j);
+    if (!c.uniform_ranges) {
+      runRequests(c, s, y, i, j);
+      // The right statistics the run's profiles read (columns x - d), row-wide at once.
+      int dlo = c.dmax, dhi = c.dmin;
+      for (size_t t = i; t <= j; ++t) {
+        int el, eh;
+        if (effectiveRange(c, s.active[t], y, &el, &eh)) {
+          dlo = std::min(dlo, el);
+          dhi = std::max(dhi, eh);
+        }
+      }
+      if (dlo <= dhi) rowMapsR(c, s, y, std::max(r, a - dhi), std::min(c.width - 1 - r, b - dlo));
+    }
     // Lanes the run's profiles read: the union of its columns' requests (every column of a
     // pixel's window holds that pixel's range).
     int k0 = dp, k1 = -1;
@@ -1621,17 +1649,10 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
                      s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         } else {
           needMapL(c, s, x, y);
-          // Right statistics of x - d for d = lo .. hi, gathered contiguous, then the same
-          // expression as everywhere, 8 at a time.
-          float* gs = s.gather_s.data();
-          float* gi = s.gather_i.data();
-          for (int d = lo; d <= hi; ++d) {
-            needMapR(c, s, x - d, y);
-            gs[d - lo] = s.maps.sum_r[x - d];
-            gi[d - lo] = s.maps.inv_r[x - d];
-          }
-          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x], gs, gi,
-                     s.prof0);
+          // Right statistics of x - d for d = lo .. hi: mirrored, computed for the run above.
+          const int m = c.width - 1 - x + lo;
+          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
+                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         }
         scanProfile(s.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
