@@ -124,7 +124,6 @@ struct Scratch {
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
   float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
-  std::vector<double> dbl_a, dbl_b;
   // Dense engine ("lanes over disparity"): vertical window sums of every column for the
   // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
   std::vector<float> vl;
@@ -220,8 +219,6 @@ struct Scratch {
     lprof.assign(dpad + 24, 0.f);
     lmbuf.assign(dpad + 24, 0.f);
     hvec.assign(dpad + 8, 0.f);
-    dbl_a.assign(w + 64, 0.0);
-    dbl_b.assign(w + 64, 0.0);
     // 8 floats before (prof0[-1] is read, masked) and 16 after (whole groups past the end).
     prof.assign(dpad + 24, 0.f);
     prof0 = prof.data() + 8;
@@ -649,17 +646,6 @@ inline void computeGammaR(const LevelContext& c, Scratch& s, int q, int y) {
                               boxAt(c.im->sq_lap_r, q, y, c.r));
 }
 
-/// Box sums of one CV_32S (possibly wrapped) integral image for the windows of row y, columns
-/// [x0, x1], half width r: the same values as boxAt.
-ES_KERNEL void boxRow(const cv::Mat& integral, int y, int r, int x0, int x1, double* out) {
-  const uint32_t* __restrict top = integral.ptr<uint32_t>(y - r);
-  const uint32_t* __restrict bot = integral.ptr<uint32_t>(y + r + 1);
-  for (int x = x0; x <= x1; ++x) {
-    out[x] = static_cast<double>(
-        static_cast<int32_t>((bot[x + r + 1] - top[x + r + 1]) - (bot[x - r] - top[x - r])));
-  }
-}
-
 // The row-wide statistics are the same expressions as invStd/gammaOf, split into passes that
 // vectorise: the double part, then the float square roots with SSE (the scalar std::sqrt keeps
 // an errno branch that blocks vectorisation). IEEE division, square root and conversions are
@@ -689,31 +675,53 @@ void sqrtDivRow(int n, float* p, float den) {
   for (; i < n; ++i) p[i] = std::sqrt(p[i]) / den;
 }
 
-/// First pass of the NCC statistics: mean (left) or sum (right) of the window, and in @p inv
+/// First pass of the NCC statistics of row y, columns [x0, x1], window sums read from the
+/// integral images as boxAt reads them: mean (left) or sum (right) of the window, and in @p inv
 /// the quotient (n sum L^2 - (sum L)^2) / n where it exceeds the flatness threshold, else 0;
-/// invSqrtRow turns it into the value of invStd.
-ES_KERNEL void statsRow(int x0, int x1, double n, const double* __restrict sum,
-                        const double* __restrict sq, float* __restrict mean_or_sum,
-                        float* __restrict inv, bool as_mean) {
+/// invSqrtRow turns it into the value of invStd. a > 0.5 gives a quotient of at least
+/// 0.5 / 1024 (windows up to 32 x 32): > 0 marks it.
+template <bool kAsMean>
+ES_INLINE void statsRowIntImpl(const cv::Mat& int_sum, const cv::Mat& int_sq, int y, int r, int x0,
+                               int x1, double n, float* __restrict mean_or_sum,
+                               float* __restrict inv) {
+  const uint32_t* __restrict ts = int_sum.ptr<uint32_t>(y - r);
+  const uint32_t* __restrict bs = int_sum.ptr<uint32_t>(y + r + 1);
+  const uint32_t* __restrict tq = int_sq.ptr<uint32_t>(y - r);
+  const uint32_t* __restrict bq = int_sq.ptr<uint32_t>(y + r + 1);
   const float nf = static_cast<float>(n);
-  // a > 0.5 gives a quotient of at least 0.5 / 1024 (windows up to 32 x 32): > 0 marks it.
   for (int x = x0; x <= x1; ++x) {
-    const double a = n * sq[x] - sum[x] * sum[x];
+    const double sum = static_cast<double>(
+        static_cast<int32_t>((bs[x + r + 1] - ts[x + r + 1]) - (bs[x - r] - ts[x - r])));
+    const double sq = static_cast<double>(
+        static_cast<int32_t>((bq[x + r + 1] - tq[x + r + 1]) - (bq[x - r] - tq[x - r])));
+    const double a = n * sq - sum * sum;
     inv[x] = a > 0.5 ? static_cast<float>(a) / nf : 0.f;
-  }
-  if (as_mean) {
-    for (int x = x0; x <= x1; ++x) mean_or_sum[x] = static_cast<float>((sum[x] - 128.0 * n) / n);
-  } else {
-    for (int x = x0; x <= x1; ++x) mean_or_sum[x] = static_cast<float>(sum[x] - 128.0 * n);
+    mean_or_sum[x] = kAsMean ? static_cast<float>((sum - 128.0 * n) / n)
+                             : static_cast<float>(sum - 128.0 * n);
   }
 }
-
-/// First pass of the structure values: max(0, n sum G^2 - (sum G)^2) as float; sqrtDivRow
-/// turns it into the value of gammaOf.
-ES_KERNEL void gammaRow(int x0, int x1, double n, const double* __restrict sum,
-                        const double* __restrict sq, float* __restrict g) {
+ES_KERNEL void statsRowInt(const cv::Mat& int_sum, const cv::Mat& int_sq, int y, int r, int x0,
+                           int x1, double n, float* mean_or_sum, float* inv, bool as_mean) {
+  if (as_mean) {
+    statsRowIntImpl<true>(int_sum, int_sq, y, r, x0, x1, n, mean_or_sum, inv);
+  } else {
+    statsRowIntImpl<false>(int_sum, int_sq, y, r, x0, x1, n, mean_or_sum, inv);
+  }
+}
+/// First pass of the structure values of row y: max(0, n sum G^2 - (sum G)^2) as float;
+/// sqrtDivRow turns it into the value of gammaOf.
+ES_KERNEL void gammaRowInt(const cv::Mat& int_sum, const cv::Mat& int_sq, int y, int r, int x0,
+                           int x1, double n, float* __restrict g) {
+  const uint32_t* __restrict ts = int_sum.ptr<uint32_t>(y - r);
+  const uint32_t* __restrict bs = int_sum.ptr<uint32_t>(y + r + 1);
+  const uint32_t* __restrict tq = int_sq.ptr<uint32_t>(y - r);
+  const uint32_t* __restrict bq = int_sq.ptr<uint32_t>(y + r + 1);
   for (int x = x0; x <= x1; ++x) {
-    const double a = n * sq[x] - sum[x] * sum[x];
+    const double sum = static_cast<double>(
+        static_cast<int32_t>((bs[x + r + 1] - ts[x + r + 1]) - (bs[x - r] - ts[x - r])));
+    const double sq = static_cast<double>(
+        static_cast<int32_t>((bq[x + r + 1] - tq[x + r + 1]) - (bq[x - r] - tq[x - r])));
+    const double a = n * sq - sum * sum;
     g[x] = std::max(0.f, static_cast<float>(a));
   }
 }
@@ -729,15 +737,11 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
     x1 = c.width - 1 - r;
   }
   const double n = static_cast<double>(c.w) * c.w;
-  double* a = s.dbl_a.data();
-  double* b = s.dbl_b.data();
-  boxRow(c.im->int_l, y, r, x0, x1, a);
-  boxRow(c.im->sq_l, y, r, x0, x1, b);
-  statsRow(x0, x1, n, a, b, s.maps.mean_l.data(), s.maps.inv_l.data(), true);
+  statsRowInt(c.im->int_l, c.im->sq_l, y, r, x0, x1, n, s.maps.mean_l.data(), s.maps.inv_l.data(),
+              true);
   invSqrtRow(x1 - x0 + 1, s.maps.inv_l.data() + x0);
-  boxRow(c.im->int_r, y, r, x0, x1, a);
-  boxRow(c.im->sq_r, y, r, x0, x1, b);
-  statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  statsRowInt(c.im->int_r, c.im->sq_r, y, r, x0, x1, n, s.maps.sum_r.data(), s.maps.inv_r.data(),
+              false);
   invSqrtRow(x1 - x0 + 1, s.maps.inv_r.data() + x0);
   if (!with_gamma) {
     // Mirrored copies for the sparse engine's profiles: R statistics at x - d for increasing d.
@@ -748,13 +752,9 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
     }
     return;
   }
-  boxRow(c.im->int_lap_l, y, r, x0, x1, a);
-  boxRow(c.im->sq_lap_l, y, r, x0, x1, b);
-  gammaRow(x0, x1, n, a, b, s.maps.gamma_l.data());
+  gammaRowInt(c.im->int_lap_l, c.im->sq_lap_l, y, r, x0, x1, n, s.maps.gamma_l.data());
   sqrtDivRow(x1 - x0 + 1, s.maps.gamma_l.data() + x0, static_cast<float>(n));
-  boxRow(c.im->int_lap_r, y, r, x0, x1, a);
-  boxRow(c.im->sq_lap_r, y, r, x0, x1, b);
-  gammaRow(x0, x1, n, a, b, s.maps.gamma_r.data());
+  gammaRowInt(c.im->int_lap_r, c.im->sq_lap_r, y, r, x0, x1, n, s.maps.gamma_r.data());
   sqrtDivRow(x1 - x0 + 1, s.maps.gamma_r.data() + x0, static_cast<float>(n));
 }
 
@@ -763,11 +763,8 @@ void computeRowMaps(const LevelContext& c, Scratch& s, int y, bool with_gamma = 
 void rowMapsR(const LevelContext& c, Scratch& s, int y, int x0, int x1) {
   if (x0 > x1) return;
   const double n = static_cast<double>(c.w) * c.w;
-  double* a = s.dbl_a.data();
-  double* b = s.dbl_b.data();
-  boxRow(c.im->int_r, y, c.r, x0, x1, a);
-  boxRow(c.im->sq_r, y, c.r, x0, x1, b);
-  statsRow(x0, x1, n, a, b, s.maps.sum_r.data(), s.maps.inv_r.data(), false);
+  statsRowInt(c.im->int_r, c.im->sq_r, y, c.r, x0, x1, n, s.maps.sum_r.data(), s.maps.inv_r.data(),
+              false);
   invSqrtRow(x1 - x0 + 1, s.maps.inv_r.data() + x0);
   const int W = c.width;
   for (int x = x0; x <= x1; ++x) {
