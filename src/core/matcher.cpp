@@ -112,6 +112,8 @@ struct Scratch {
   std::vector<Interval> ivs;  // the intervals of all disparities, grouped by disparity
   std::vector<Interval> pieces, merged, need, runs, out_ivs;
   std::vector<int> block_a, block_b, blocks, active, pick, cand_q;
+  std::vector<int> block_k0, block_k1, iv_count;  // per block: disparity indices covered
+  std::vector<Interval> iv_by_k;                  // per disparity index: up to one per block
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
@@ -185,6 +187,10 @@ struct Scratch {
     iv_start.assign(nd + 1, 0);
     block_a.assign(nb, 0);
     block_b.assign(nb, 0);
+    block_k0.assign(nb, 0);
+    block_k1.assign(nb, -1);
+    iv_count.assign(nd, 0);
+    iv_by_k.assign(static_cast<size_t>(nd) * nb, Interval{0, -1});
     // + 8: padding for whole 8-lane groups past the last disparity of a column.
     colsum.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
     col_row.assign(w, -10);
@@ -905,39 +911,56 @@ void ensureV(const LevelContext& c, Scratch& s, int k, int y, const std::vector<
 /// s.ivs / s.iv_start. Cost O(columns + blocks * disparities).
 void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& cols) {
   const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
+  const int nb = static_cast<int>(s.block_a.size());
+  // Coverage per block as a difference array over the disparity indices (kept all zero between
+  // calls: only the indices a block touched are cleared again below), and the span it touches.
   s.blocks.clear();
   for (int x : cols) {
     const int b = x / kBlock;
     if (s.blocks.empty() || s.blocks.back() != b) {
       s.blocks.push_back(b);
-      std::fill(s.cover.begin() + static_cast<size_t>(b) * (nd + 1),
-                s.cover.begin() + static_cast<size_t>(b + 1) * (nd + 1), 0);
       s.block_a[b] = x;
+      s.block_k0[b] = nd;
+      s.block_k1[b] = -1;
     }
     int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
-    ++cv[s.elo_i[x] - c.dmin];
-    --cv[s.ehi_i[x] - c.dmin + 1];
+    const int k0 = s.elo_i[x] - c.dmin, k1 = s.ehi_i[x] - c.dmin;
+    ++cv[k0];
+    --cv[k1 + 1];
+    s.block_k0[b] = std::min(s.block_k0[b], k0);
+    s.block_k1[b] = std::max(s.block_k1[b], k1);
     s.block_b[b] = x;
   }
+  // Blocks in column order, each over the disparities it covers: every disparity's intervals
+  // come out sorted by column and merged exactly as a scan of all blocks per disparity would.
+  std::fill(s.iv_count.begin(), s.iv_count.begin() + nd, 0);
   for (int b : s.blocks) {
     int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
-    for (int k = 1; k < nd; ++k) cv[k] += cv[k - 1];
+    const int k0 = s.block_k0[b], k1 = s.block_k1[b];
+    int count = 0;
+    for (int k = k0; k <= k1; ++k) {
+      count += cv[k];
+      cv[k] = 0;
+      if (count <= 0) continue;
+      const int d = c.dmin + k;
+      const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
+      const int a = std::max(lo, s.block_a[b]), e = std::min(hi, s.block_b[b]);
+      if (a > e) continue;
+      Interval* list = s.iv_by_k.data() + static_cast<size_t>(k) * nb;
+      int& n = s.iv_count[k];
+      if (n > 0 && list[n - 1].b + c.w >= a) {
+        list[n - 1].b = e;
+      } else {
+        list[n++] = {a, e};
+      }
+    }
+    cv[k1 + 1] = 0;
   }
   s.ivs.clear();
   for (int k = 0; k < nd; ++k) {
     s.iv_start[k] = static_cast<int>(s.ivs.size());
-    const int d = c.dmin + k;
-    const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
-    for (int b : s.blocks) {
-      if (s.cover[static_cast<size_t>(b) * (nd + 1) + k] <= 0) continue;
-      const int a = std::max(lo, s.block_a[b]), e = std::min(hi, s.block_b[b]);
-      if (a > e) continue;
-      if (s.ivs.size() > static_cast<size_t>(s.iv_start[k]) && s.ivs.back().b + c.w >= a) {
-        s.ivs.back().b = e;
-      } else {
-        s.ivs.push_back({a, e});
-      }
-    }
+    const Interval* list = s.iv_by_k.data() + static_cast<size_t>(k) * nb;
+    s.ivs.insert(s.ivs.end(), list, list + s.iv_count[k]);
   }
   s.iv_start[nd] = static_cast<int>(s.ivs.size());
 }
