@@ -2,6 +2,7 @@
 #include "endo_stereo/ros/reconstruction.hpp"
 
 #include <algorithm>
+#include <chrono>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -143,6 +144,11 @@ Reconstruction::~Reconstruction() {
     shutdown_ = true;
   }
   slot_cv_.notify_all();
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    info_stopping_ = true;
+  }
+  info_cv_.notify_all();
   if (worker_.joinable()) worker_.join();
 }
 
@@ -226,8 +232,11 @@ bool Reconstruction::inputsSubscribed() const {
 // ------------------------------------------------------------------------------------------------
 
 void Reconstruction::infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg) {
-  std::lock_guard<std::mutex> lock(info_mutex_);
-  (left ? left_info_ : right_info_) = msg;
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    (left ? left_info_ : right_info_) = msg;
+  }
+  info_cv_.notify_all();
 }
 
 void Reconstruction::imageCb(bool left, const sensor_msgs::ImageConstPtr& msg) {
@@ -339,6 +348,7 @@ void Reconstruction::workerLoop() {
       slot_.reset();
     }
     try {
+      if (needsCameraInfo() && (!pair.left_info || !pair.right_info)) awaitCameraInfo(pair);
       processPair(pair);
     } catch (const std::exception& ex) {
       // The pipeline promises not to throw on bad input; this is the last line of defence that
@@ -346,6 +356,16 @@ void Reconstruction::workerLoop() {
       reject("pair", std::string("unexpected exception: ") + ex.what());
     }
   }
+}
+
+void Reconstruction::awaitCameraInfo(Pair& pair) {
+  // The calibration of a rig does not change from frame to frame, so the first camera_info to
+  // arrive serves a pair that came before it; checkPair still judges what it holds.
+  std::unique_lock<std::mutex> lock(info_mutex_);
+  info_cv_.wait_for(lock, std::chrono::duration<double>(ros_params_.camera_info_wait_s),
+                    [this] { return info_stopping_ || (left_info_ && right_info_); });
+  if (!pair.left_info) pair.left_info = left_info_;
+  if (!pair.right_info) pair.right_info = right_info_;
 }
 
 void Reconstruction::reject(const std::string& what, const std::string& error) {

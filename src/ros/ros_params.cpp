@@ -105,6 +105,8 @@ std::string RosParams::validate() const {
     m << "diagnostics_period_s: must be in [0.05, 60] s, got " << diagnostics_period_s;
   } else if (!(unpaired_timeout_s > 0.0 && unpaired_timeout_s <= 60.0)) {
     m << "unpaired_timeout_s: must be in (0, 60] s, got " << unpaired_timeout_s;
+  } else if (!(camera_info_wait_s >= 0.0 && camera_info_wait_s <= 10.0)) {
+    m << "camera_info_wait_s: must be in [0, 10] s, got " << camera_info_wait_s;
   } else if (!(restart_jump_back_s >= 0.0 && restart_jump_back_s <= 3600.0)) {
     m << "restart_jump_back_s: must be in [0, 3600] s, got " << restart_jump_back_s;
   } else if (!(subpixel_delta_d > 0.0 && subpixel_delta_d <= 1.0)) {
@@ -154,6 +156,7 @@ std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params) {
   if (e.empty()) e = readBoth(pnh, "frame_id", &p.frame_id);
   if (e.empty()) e = readBoth(pnh, "diagnostics_period_s", &p.diagnostics_period_s);
   if (e.empty()) e = readBoth(pnh, "unpaired_timeout_s", &p.unpaired_timeout_s);
+  if (e.empty()) e = readBoth(pnh, "camera_info_wait_s", &p.camera_info_wait_s);
   if (e.empty()) e = readBoth(pnh, "restart_jump_back_s", &p.restart_jump_back_s);
   if (e.empty()) e = readBoth(pnh, "subpixel_delta_d", &p.subpixel_delta_d);
   if (!e.empty()) return e;

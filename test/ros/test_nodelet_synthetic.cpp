@@ -6,6 +6,7 @@
 // /bad (bad-input sequence), /tf and /tf_missing (target_frame with and without a transform).
 #include <algorithm>
 #include <cmath>
+#include <map>
 #include <memory>
 
 #include <dynamic_reconfigure/Reconfigure.h>
@@ -327,6 +328,33 @@ TEST(Reconfigure, ChangeTakesEffectOnTheNextFrame) {
   EXPECT_FLOAT_EQ(next->max_disparity, 95.0f);
 
   ASSERT_TRUE(reconfigure("matcher_max_disparity", kMaxDisparity, &echoed));
+}
+
+TEST(CameraInfoAfterImages, APairWaitsForTheFirstCameraInfo) {
+  // At start-up the image connections can come up before the camera_info ones (rosbag play):
+  // the first pair then finds no calibration although it is on its way. It must wait for it
+  // (~camera_info_wait_s, 2 s in the .test file) and be processed, not refused.
+  ros::NodeHandle nh;
+  StereoPublisher pub("/late_info");
+  Collector<stereo_msgs::DisparityImage> disparities(nh, "/late_info/disparity");
+  Collector<DiagArray> diag(nh, "/diagnostics");
+  ASSERT_TRUE(waitUntil([&] { return pub.inputsSubscribed(); }, 10.0));
+  ASSERT_TRUE(waitUntil([&] { return pub.left_info.getNumSubscribers() > 0 &&
+                                     pub.right_info.getNumSubscribers() > 0; }, 10.0));
+  const ros::Time t = nextStamp();
+  pub.publishPair(t);  // no camera_info has been published on /late_info yet
+  ros::WallDuration(0.3).sleep();
+  pub.publishGoodInfo();
+  ASSERT_TRUE(waitUntil([&] { return disparities.count() > 0; }, 10.0))
+      << "the pair published 0.3 s before the camera_info was not processed";
+  EXPECT_EQ(disparities.all().front()->header.stamp, t);
+  std::map<std::string, std::string> kv;
+  ASSERT_TRUE(diag.waitFor([&](const DiagArray& a) {
+    kv = test::statusValues(a, "/late_info/reconstruction");
+    return test::numberOr(kv, "pairs processed", 0) >= 1;
+  }, 10.0));
+  EXPECT_EQ(test::numberOr(kv, "pairs rejected", -1), 0)
+      << "last error: " << (kv.count("last error") ? kv.at("last error") : std::string());
 }
 
 TEST(ApproximateSync, PairsStampsWithinTheTolerance) {

@@ -123,6 +123,11 @@ TEST(RosParamsFromRos, WrongTypeAndRangeAreReported) {
   r = RosParams();
   r.tf_timeout_s = -1.0;
   EXPECT_NE(r.validate().find("tf_timeout_s"), std::string::npos);
+  r = RosParams();
+  r.camera_info_wait_s = 11.0;
+  EXPECT_NE(r.validate().find("camera_info_wait_s"), std::string::npos);
+  r.camera_info_wait_s = 0.0;  // 0 = refuse at once, as before
+  EXPECT_EQ(r.validate(), "");
 }
 
 }  // namespace

@@ -118,6 +118,8 @@ class Reconstruction {
   void reject(const std::string& what, const std::string& error);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
   bool needsCameraInfo() const;
+  /// Fills a pair's missing camera_info with the latest one, waiting up to camera_info_wait_s.
+  void awaitCameraInfo(Pair& pair);
   bool usesCameraInfo() const;
 
   ros::NodeHandle nh_, pnh_;
@@ -145,6 +147,8 @@ class Reconstruction {
 
   // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
   mutable std::mutex info_mutex_;
+  std::condition_variable info_cv_;  // a camera_info arrived, or shutting down
+  bool info_stopping_ = false;
   sensor_msgs::CameraInfoConstPtr left_info_, right_info_;
   ros::WallTime last_left_arrival_, last_right_arrival_;
   ros::WallTime left_unpaired_since_, right_unpaired_since_;  // first image since the last pair

@@ -46,6 +46,10 @@ struct RosParams {
   double diagnostics_period_s = 1.0;
   /// Report images of one side arriving without a partner after this long, s, in (0, 60].
   double unpaired_timeout_s = 1.0;
+  /// Calibrated input: a pair that finds no camera_info of one side yet waits this long for it
+  /// before it is refused, s, in [0, 10]. At start-up the image connections can come up before
+  /// the camera_info ones (rosbag play, a driver starting its publishers one by one).
+  double camera_info_wait_s = 0.5;
   /// A pair whose stamp is older than the last processed one by less than this is dropped as
   /// out of order; a larger jump back (a looping bag, a restarted driver) restarts the stream.
   /// s, in [0, 3600].
