@@ -701,7 +701,8 @@ ES_INLINE void statsRowIntImpl(const cv::Mat& int_sum, const cv::Mat& int_sq, in
     const double sq = static_cast<double>(
         static_cast<int32_t>((bq[x + r + 1] - tq[x + r + 1]) - (bq[x - r] - tq[x - r])));
     const double a = n * sq - sum * sum;
-    inv[x] = a > 0.5 ? static_cast<float>(a) / nf : 0.f;
+    const float q = static_cast<float>(a) / nf;  // unconditional: the loop vectorises
+    inv[x] = a > 0.5 ? q : 0.f;
     mean_or_sum[x] = kAsMean ? static_cast<float>((sum - 128.0 * n) / n)
                              : static_cast<float>(sum - 128.0 * n);
   }
