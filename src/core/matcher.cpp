@@ -577,6 +577,10 @@ inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
       static_cast<int32_t>((bot[x + r + 1] - top[x + r + 1]) - (bot[x - r] - top[x - r])));
 }
 
+ES_KERNEL void addRows(int n, uint32_t* __restrict out, const uint32_t* __restrict above) {
+  for (int i = 0; i < n; ++i) out[i] += above[i];
+}
+
 /// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v^2 for the 8-bit
 /// image @p img and of g and g^2 for its Laplacian @p lap (CV_16S), all modulo 2^32: half the
 /// memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt/boxRow
@@ -599,6 +603,8 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::M
     uint32_t* os = sq.ptr<uint32_t>(y + 1);
     uint32_t* og = int_lap.ptr<uint32_t>(y + 1);
     uint32_t* oq = sq_lap.ptr<uint32_t>(y + 1);
+    // Row prefix sums (a serial chain each) into the output row, then the row above added in a
+    // separate, vectorised pass.
     uint32_t rs = 0, rg = 0, rq = 0;
     os[0] = og[0] = oq[0] = 0;
     for (int x = 0; x < W; ++x) {
@@ -607,10 +613,13 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::M
       rs += vv * vv;
       rg += static_cast<uint32_t>(gg);
       rq += static_cast<uint32_t>(gg * gg);
-      os[x + 1] = ps[x + 1] + rs;
-      og[x + 1] = pg[x + 1] + rg;
-      oq[x + 1] = pq[x + 1] + rq;
+      os[x + 1] = rs;
+      og[x + 1] = rg;
+      oq[x + 1] = rq;
     }
+    addRows(W, os + 1, ps + 1);
+    addRows(W, og + 1, pg + 1);
+    addRows(W, oq + 1, pq + 1);
   }
 }
 
@@ -2146,18 +2155,22 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   if (range && !range->empty()) {
     std::vector<int64_t> block_prior(num_blocks, 0);
     forRowBlocks([&](int b, int y0, int y1) {
+      // Locals (not the captured references) so that the stores cannot alias them: vectorises.
+      const int w = W, dmin = mp.min_disparity, dmax = mp.max_disparity;
       int64_t n = 0;
       for (int y = y0; y < y1; ++y) {
-        const int16_t* lo = range->lo.ptr<int16_t>(y);
-        const int16_t* hi = range->hi.ptr<int16_t>(y);
-        int* olo = im.range_lo.ptr<int>(y);
-        int* ohi = im.range_hi.ptr<int>(y);
-        for (int x = 0; x < W; ++x) {
-          olo[x] = std::max<int>(lo[x], mp.min_disparity);
-          ohi[x] = std::min<int>(hi[x], mp.max_disparity);
-          n += (lo[x] <= hi[x]) & (olo[x] <= ohi[x]) &
-               ((olo[x] > mp.min_disparity) | (ohi[x] < mp.max_disparity));
+        const int16_t* __restrict lo = range->lo.ptr<int16_t>(y);
+        const int16_t* __restrict hi = range->hi.ptr<int16_t>(y);
+        int* __restrict olo = im.range_lo.ptr<int>(y);
+        int* __restrict ohi = im.range_hi.ptr<int>(y);
+        int row_n = 0;
+        for (int x = 0; x < w; ++x) {
+          const int l = std::max<int>(lo[x], dmin), h = std::min<int>(hi[x], dmax);
+          olo[x] = l;
+          ohi[x] = h;
+          row_n += (lo[x] <= hi[x]) & (l <= h) & ((l > dmin) | (h < dmax));
         }
+        n += row_n;
       }
       block_prior[b] = n;
     });
