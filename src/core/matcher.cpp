@@ -103,6 +103,8 @@ struct Scratch {
   int num_d = 0;
   int dpad = 0;           // num_d rounded up to a multiple of 8
   int stamp = 0;          // increases with every processed row
+  const int* rlo_row = nullptr;  // requested ranges of the row being processed
+  const int* rhi_row = nullptr;
   // Dense engine.
   std::vector<float> v;          // vertical window sums, num_d rows of width
   std::vector<VValidity> valid;  // per disparity
@@ -817,10 +819,10 @@ inline void needGammaR(const LevelContext& c, Scratch& s, int q, int y) {
 
 /// Effective range of pixel (x, y) at this window: its requested range, cut so that both windows
 /// lie inside the images. @return false when empty (also outside [r, W - r)).
-inline bool effectiveRange(const LevelContext& c, int x, int y, int* lo, int* hi) {
+inline bool effectiveRange(const LevelContext& c, const Scratch& s, int x, int* lo, int* hi) {
   if (x < c.r || x >= c.width - c.r) return false;
-  *lo = std::max(c.im->range_lo.ptr<int>(y)[x], x - (c.width - 1 - c.r));
-  *hi = std::min(c.im->range_hi.ptr<int>(y)[x], x - c.r);
+  *lo = std::max(s.rlo_row[x], x - (c.width - 1 - c.r));
+  *hi = std::min(s.rhi_row[x], x - c.r);
   return *lo <= *hi;
 }
 
@@ -1047,7 +1049,7 @@ void denseSlices(const LevelContext& c, Scratch& s, int k, int y, const Interval
 /// The disparity indices [k0, k1] column x's sums must hold at row y: the union of the effective
 /// ranges of the pixels whose windows contain the column (the only NCC values it feeds), widened
 /// to whole 8-lane groups. Cached per row.
-inline void columnRequest(const LevelContext& c, Scratch& s, int x, int y, int* k0, int* k1) {
+inline void columnRequest(const LevelContext& c, Scratch& s, int x, int* k0, int* k1) {
   if (s.req_stamp[x] == s.stamp) {
     *k0 = s.req_k0[x];
     *k1 = s.req_k1[x];
@@ -1062,7 +1064,7 @@ inline void columnRequest(const LevelContext& c, Scratch& s, int x, int y, int* 
     hi = std::numeric_limits<int>::min();
     for (int xx = std::max(c.r, x - c.r); xx <= std::min(c.width - 1 - c.r, x + c.r); ++xx) {
       int a, b;
-      if (!effectiveRange(c, xx, y, &a, &b)) continue;
+      if (!effectiveRange(c, s, xx, &a, &b)) continue;
       lo = std::min(lo, a);
       hi = std::max(hi, b);
     }
@@ -1097,7 +1099,7 @@ inline void ensureColumn(const LevelContext& c, Scratch& s, int x, int y) {
   if (s.col_done[x] == s.stamp) return;  // already made valid for this row's request
   s.col_done[x] = s.stamp;
   int k0, k1;
-  columnRequest(c, s, x, y, &k0, &k1);
+  columnRequest(c, s, x, &k0, &k1);
   s.col_used[x] = y;
   const bool covers = s.col_k0[x] <= k0 && k1 <= s.col_k1[x];
   if (s.col_row[x] == y && covers) return;
@@ -1603,7 +1605,7 @@ void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
 /// s.active[i..j] must hold, the union of the effective ranges of the run's pixels whose windows
 /// contain it (the column sums feed only these pixels' profiles; the right-to-left profiles have
 /// their own sums), cached for columnRequest.
-void runRequests(const LevelContext& c, Scratch& s, int y, size_t i, size_t j) {
+void runRequests(const LevelContext& c, Scratch& s, size_t i, size_t j) {
   const int r = c.r;
   const int a = s.active[i], b = s.active[j];
   int* lo = s.run_lo.data();  // index x - a
@@ -1613,7 +1615,7 @@ void runRequests(const LevelContext& c, Scratch& s, int y, size_t i, size_t j) {
   for (size_t t = i; t <= j; ++t) {
     const int x = s.active[t];
     int el, eh;
-    if (effectiveRange(c, x, y, &el, &eh)) {
+    if (effectiveRange(c, s, x, &el, &eh)) {
       lo[x - a] = el;
       hi[x - a] = eh;
     }
@@ -1642,12 +1644,12 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
     while (j + 1 < na && s.active[j + 1] <= s.active[j] + c.w) ++j;
     const int a = s.active[i], b = s.active[j];
     if (!c.uniform_ranges) {
-      runRequests(c, s, y, i, j);
+      runRequests(c, s, i, j);
       // The right statistics the run's profiles read (columns x - d), row-wide at once.
       int dlo = c.dmax, dhi = c.dmin;
       for (size_t t = i; t <= j; ++t) {
         int el, eh;
-        if (effectiveRange(c, s.active[t], y, &el, &eh)) {
+        if (effectiveRange(c, s, s.active[t], &el, &eh)) {
           dlo = std::min(dlo, el);
           dhi = std::max(dhi, eh);
         }
@@ -1672,7 +1674,7 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
       if (next <= j && s.active[next] == x) {
         ++next;
         int lo = 0, hi = -1;
-        effectiveRange(c, x, y, &lo, &hi);
+        effectiveRange(c, s, x, &lo, &hi);
         if (c.uniform_ranges) {
           const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
           nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
@@ -1711,11 +1713,15 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   int dv0 = std::max(c.dmin, r - q), dv1 = std::min(c.dmax, c.width - 1 - r - q);
   if (!c.uniform_ranges) {
     // The disparities d whose left pixel q + d holds d in its effective range, listed once.
-    s.rl_ds.clear();
+    // q is inside the border and q + d is too (dv0, dv1), so pixel q + d's effective range holds
+    // d exactly when its requested range does.
+    s.rl_ds.resize(static_cast<size_t>(std::max(0, dv1 - dv0 + 1)));
+    int n = 0;
     for (int d = dv0; d <= dv1; ++d) {
-      int lo, hi;
-      if (effectiveRange(c, q + d, y, &lo, &hi) && d >= lo && d <= hi) s.rl_ds.push_back(d);
+      s.rl_ds[n] = d;
+      n += (s.rlo_row[q + d] <= d) & (d <= s.rhi_row[q + d]);
     }
+    s.rl_ds.resize(n);
     if (s.rl_ds.empty()) {
       dv0 = 1;
       dv1 = 0;
@@ -1785,6 +1791,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
 
   const int* rlo = c.im->range_lo.ptr<int>(y);
   const int* rhi = c.im->range_hi.ptr<int>(y);
+  s.rlo_row = rlo;
+  s.rhi_row = rhi;
   const uint8_t* st = c.state->ptr<uint8_t>(y);
   uint8_t* code = c.out->code.ptr<uint8_t>(y);
   const float gmin = static_cast<float>(c.mp->gamma_min);
@@ -1891,7 +1899,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   } else {
     for (const int x : open) {
       int lo, hi;
-      if (!effectiveRange(c, x, y, &lo, &hi)) continue;
+      if (!effectiveRange(c, s, x, &lo, &hi)) continue;
       if (hi - lo < 2) {
         code[x] = kCodeNoPeak;
         continue;
