@@ -11,8 +11,8 @@
 #include <cstring>
 #include <limits>
 #include <memory>
+#include <mutex>
 #include <opencv2/imgproc.hpp>
-#include <unordered_map>
 #include <vector>
 
 #include "simd.hpp"
@@ -20,6 +20,14 @@
 namespace endo_stereo {
 namespace {
 using namespace simd;
+
+// Whether any lane of a comparison mask is set (simd::anyLane, the mask by reference: no note
+// from GCC about the ABI of 32-byte vector arguments in the baseline clones).
+ES_INLINE bool anySet(const V8i& m) {
+  uint64_t w[4];
+  std::memcpy(w, &m, sizeof(w));
+  return ((w[0] | w[1]) | (w[2] | w[3])) != 0;
+}
 }  // namespace
 
 // ---------------------------------------------------------------------------------------------
@@ -37,7 +45,8 @@ using namespace simd;
 // Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified (verifyFlagged).
 // ---------------------------------------------------------------------------------------------
 /// Least of lo_src and greatest of hi_src over columns [x0, x1] and rows [y0, y1]. Neither
-/// holds NaN, so min and max are exact in any order: eight lanes, then the lanes folded.
+/// holds NaN, so min and max are exact in any order and may see a value twice: eight lanes (a
+/// row's last, partial vector overlapping the one before), then the lanes folded.
 namespace {
 ES_KERNEL void windowMinMax(const cv::Mat& lo_src, const cv::Mat& hi_src, int x0, int x1, int y0,
                             int y1, float* lo, float* hi) {
@@ -52,6 +61,12 @@ ES_KERNEL void windowMinMax(const cv::Mat& lo_src, const cv::Mat& hi_src, int x0
       const V8f l = load8(ls + xx), h = load8(hs + xx);
       va = l < va ? l : va;
       vb = h > vb ? h : vb;
+    }
+    if (xx <= x1 && x1 + 1 - x0 >= 8) {
+      const V8f l = load8(ls + x1 - 7), h = load8(hs + x1 - 7);
+      va = l < va ? l : va;
+      vb = h > vb ? h : vb;
+      continue;
     }
     for (; xx <= x1; ++xx) {
       a = std::min(a, ls[xx]);
@@ -79,6 +94,39 @@ ES_KERNEL void straddleRow(const uint8_t* c, const uint8_t* k, const float* d, c
   }
 }
 
+/// The map test's sources for one row of disparities @p d: a = d, b = d where valid, a = +inf,
+/// b = -inf where NaN (neutral for min / max). Branch-free (vectorised).
+ES_KERNEL void boundsRow(const float* d, int n, float* a, float* b) {
+  const float inf = std::numeric_limits<float>::infinity();
+  const V8f pinf = splat8(inf), ninf = splat8(-inf);
+  int x = 0;
+  for (; x + 8 <= n; x += 8) {
+    const V8f v = load8(d + x);
+    const V8i valid = v == v;
+    const V8f va = valid ? v : pinf, vb = valid ? v : ninf;
+    std::memcpy(a + x, &va, sizeof(va));
+    std::memcpy(b + x, &vb, sizeof(vb));
+  }
+  for (; x < n; ++x) {
+    const bool valid = d[x] == d[x];
+    a[x] = valid ? d[x] : inf;
+    b[x] = valid ? d[x] : -inf;
+  }
+}
+
+/// For one row: sel[x] = 1 where pixel x is accepted with a window larger than the first
+/// (window index @p k > 0), else 0; returns how many are accepted with the first window.
+/// Branch-free (vectorised).
+ES_KERNEL int acceptedRow(const uint8_t* c, const uint8_t* k, int n, uint8_t* sel) {
+  int first = 0;
+  for (int x = 0; x < n; ++x) {
+    const bool accepted = c[x] >= kCodeAcceptedBase;
+    sel[x] = static_cast<uint8_t>(accepted & (k[x] != 0));
+    first += accepted & (k[x] == 0);
+  }
+  return first;
+}
+
 /// One pixel flagged by the map test, waiting for its second chance (see verifyFlagged).
 struct Flagged {
   int x, y;
@@ -89,9 +137,17 @@ constexpr int kMaxHalf = 32 / 2 + 16;  // widest map-test neighbourhood: window 
 constexpr int kMaxVerifyRadius = 6;    // MatcherParams::validate()
 constexpr int kMaxSide = 2 * kMaxVerifyRadius + 1;  // window width
 
-constexpr int kTile = 16;                         // window corners per tile side (WindowCache)
-constexpr int kTileSpan = kTile + kMaxSide - 1;   // pixel rows / columns a tile reads
-constexpr int kTileLanes = (kTileSpan + 7) / 8 * 8;  // tile columns rounded up to whole lanes
+// WindowCache tiles: a block of kTile x kTile window corners, each tile row also holding the
+// 2 r corners right of its block, so that the 2 r + 1 windows of one pixel in a row are
+// contiguous in one tile (read as 16 lanes from column 0..15: kTileStride >= 31).
+constexpr int kTile = 16;                          // window corner rows / block columns per tile
+constexpr int kTileCols = kTile + kMaxSide - 1;    // window corners per tile row, at most
+constexpr int kTileStride = 32;                    // row stride of a tile's window values
+constexpr int kTileSpan = kTile + kMaxSide - 1;    // pixel rows a tile reads
+constexpr int kTileLanes = (kTileCols + kMaxSide - 1 + 7) / 8 * 8;  // pixel columns, whole lanes
+constexpr int kRowLanes = 16;                      // lanes per window row of one pixel
+static_assert(kTileStride >= kTile - 1 + kRowLanes && kTileStride >= kTileCols, "tile layout");
+static_assert(kRowLanes >= kMaxSide, "one pixel's window row in 16 lanes");
 
 /// Whether a competitor's window (vl, vr, cov of windowParts) reaches a ZNCC >= @p own, without
 /// square root or division (vectorisable): with c = cov and D = vl * vr > 0, ZNCC = c / sqrt(D);
@@ -108,14 +164,6 @@ ES_INLINE bool beatsParts(int32_t vl, int32_t vr, int32_t cov, float own) {
   const bool down = (own < 0.f) & (lhs <= rhs);
   return valid & ((pos & up) | (!pos & down));
 }
-/// Whether any of @p count windows (parts vl, vr, cov as in beatsParts) reaches @p own there.
-ES_KERNEL bool anyBeats(const int32_t* vl, const int32_t* vr, const int32_t* cov,
-                        const float* own, int count) {
-  int any = 0;
-  for (int i = 0; i < count; ++i) any |= beatsParts(vl[i], vr[i], cov[i], own[i]);
-  return any != 0;
-}
-
 /// vl = n sll - sl^2, vr = n srr - sr^2, cov = n slr - sl sr and the ZNCC
 /// cov / sqrt(vl vr) (-2 for a flat patch: vl <= 0 or vr <= 0) of @p count windows of n pixels
 /// from their exact sums. Every product fits in int32 for windows up to 13 x 13
@@ -144,7 +192,8 @@ ES_KERNEL void windowParts(int32_t n, const int32_t* sl, const int32_t* sll, con
 /// cols_out block: column sums over K rows first, eight block columns per vector and carried
 /// down the rows (one row in, one row out), then the horizontal sums from running sums along
 /// each row of column sums. lv and rv hold the block's pixel rows (kTileLanes ints each, zero
-/// beyond the block); outputs have a row stride of kTile. With rv = lv: (l, l^2, l^2). Exact.
+/// beyond the block); outputs have a row stride of kTileStride. With rv = lv: (l, l^2, l^2).
+/// Exact.
 ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int cols_out, int K,
                          int lanes, int32_t* s1, int32_t* s2, int32_t* s3) {
   const int nv = lanes / 8;
@@ -189,9 +238,9 @@ ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int
       t2 += c2[i];
       t3 += c3[i];
     }
-    int32_t* o1 = s1 + oy * kTile;
-    int32_t* o2 = s2 + oy * kTile;
-    int32_t* o3 = s3 + oy * kTile;
+    int32_t* o1 = s1 + oy * kTileStride;
+    int32_t* o2 = s2 + oy * kTileStride;
+    int32_t* o3 = s3 + oy * kTileStride;
     o1[0] = t1;
     o2[0] = t2;
     o3[0] = t3;
@@ -208,14 +257,15 @@ ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int
 
 /// Per window of one tile: for the left image (key disparity kLeftKey) a = sum l, b = sum l^2;
 /// for a disparity q, a = vl, b = vr, c = cov of windowParts and ncc its value (-2 where the
-/// right window leaves the image or a patch is flat). Index oy * kTile + ox.
+/// right window leaves the image or a patch is flat). Index oy * kTileStride + ox.
 struct TileSums {
-  int32_t a[kTile * kTile], b[kTile * kTile], c[kTile * kTile];
-  float ncc[kTile * kTile];
+  int32_t a[kTile * kTileStride], b[kTile * kTileStride], c[kTile * kTileStride];
+  float ncc[kTile * kTileStride];
 };
 
 /// Window values of the second chance shared between flagged pixels: windows of width
-/// K = 2 r + 1 are grouped by their top-left corner into kTile x kTile tiles, and each
+/// K = 2 r + 1 are grouped by their top-left corner into kTile x kTile blocks, a tile holding a
+/// block and the 2 r corners right of it (a pixel's windows are in one tile column), and each
 /// (tile, disparity) is computed once, on first use, with separable integer sums (exact, so
 /// every value equals the one computed for a single pixel's windows). Flagged pixels come in
 /// bands along depth edges, whose windows overlap heavily.
@@ -223,7 +273,13 @@ class WindowCache {
  public:
   static constexpr int kLeftKey = -1;
 
-  void reset(const cv::Mat& left, const cv::Mat& right, int r, int min_disparity, int nd) {
+  /// Tiles a cache may hold at once with nd disparities (see tile()).
+  static int capacity(int nd) { return kSoftMaxTiles + 2 * (nd + 3); }
+
+  /// Starts a call: the images, the verification radius, the search range, and the memory of
+  /// capacity(nd) tiles (@p arena; null: the cache allocates its own).
+  void reset(const cv::Mat& left, const cv::Mat& right, int r, int min_disparity, int nd,
+             TileSums* arena) {
     left_ = &left;
     right_ = &right;
     r_ = r;
@@ -231,15 +287,27 @@ class WindowCache {
     min_d_ = min_disparity;
     nd_ = nd;
     tiles_x_ = (left.cols + kTile - 1) / kTile;
+    const int most = capacity(nd);
+    if (arena != nullptr) {
+      tiles_ = arena;
+    } else {
+      own_tiles_.reset(new TileSums[most]);
+      tiles_ = own_tiles_.get();
+    }
+    hash_bits_ = 1;
+    while ((1 << hash_bits_) < 2 * most) ++hash_bits_;
+    keys_.resize(size_t{1} << hash_bits_);
+    values_.resize(size_t{1} << hash_bits_);
     clear();
   }
   /// Forgets every tile (the memory is kept).
   void clear() {
-    index_.clear();
+    std::fill(keys_.begin(), keys_.end(), int64_t{-1});
     used_ = 0;
   }
   /// Called before each pixel: forgets every tile once many are held (the memory is kept), so
-  /// the tiles a pixel fetches stay valid while it is judged.
+  /// the tiles a pixel fetches stay valid while it is judged: one pixel fetches at most two
+  /// tiles per disparity and two left tiles, so never more than capacity(nd) are held.
   void beginPixel() {
     if (used_ > kSoftMaxTiles) clear();
   }
@@ -247,30 +315,42 @@ class WindowCache {
   const TileSums& tile(int tx, int ty, int q) {
     const int64_t key = (static_cast<int64_t>(ty) * tiles_x_ + tx) * (nd_ + 1) +
                         (q == kLeftKey ? 0 : q - min_d_ + 1);
-    const auto it = index_.find(key);
-    if (it != index_.end()) return *pool_[it->second];
+    // Open addressing, linear probing (keys >= 0; -1 = empty slot).
+    const size_t mask = keys_.size() - 1;
+    size_t h = static_cast<size_t>((static_cast<uint64_t>(key) * 0x9E3779B97F4A7C15ull) >>
+                                   (64 - hash_bits_));
+    while (keys_[h] != -1) {
+      if (keys_[h] == key) return tiles_[values_[h]];
+      h = (h + 1) & mask;
+    }
     const TileSums* l = q == kLeftKey ? nullptr : &tile(tx, ty, kLeftKey);
-    if (used_ == static_cast<int>(pool_.size())) pool_.emplace_back(new TileSums);
-    TileSums& t = *pool_[used_];
+    if (l != nullptr) {
+      // The left tile's insertion may have taken slot h: probe on to a free one.
+      while (keys_[h] != -1) h = (h + 1) & mask;
+    }
+    CV_Assert(used_ < capacity(nd_));
+    TileSums& t = tiles_[used_];
     if (l != nullptr) {
       buildRight(tx, ty, q, *l, t);
     } else {
       buildLeft(tx, ty, t);
     }
-    index_.emplace(key, used_++);
+    keys_[h] = key;
+    values_[h] = used_++;
     return t;
   }
 
  private:
-  // Bounds the memory (4 KiB a tile: 16 MiB per thread); the speed scene (960x540, 12k flagged
-  // pixels) builds about 1900 tiles in all.
-  static constexpr int kSoftMaxTiles = 4096;
+  // Bounds the memory (8 KiB a tile: about 17 MiB per thread with 64 disparities); the flagged
+  // pixels come in tile-major order, so the tiles still needed are those of the last few block
+  // rows.
+  static constexpr int kSoftMaxTiles = 2048;
 
   /// The tile's first window corner, its window counts and its left pixels (zero-padded).
   void block(int tx, int ty, int* wx0, int* wy0, int* nx, int* ny) const {
     *wx0 = tx * kTile;
     *wy0 = ty * kTile;
-    *nx = std::min(kTile, left_->cols - k_ + 1 - *wx0);
+    *nx = std::min(kTile + k_ - 1, left_->cols - k_ + 1 - *wx0);
     *ny = std::min(kTile, left_->rows - k_ + 1 - *wy0);
   }
   void leftPixels(int wx0, int wy0, int nx, int ny, int lanes) {
@@ -312,7 +392,7 @@ class WindowCache {
         }
       }
     }
-    int32_t sr[kTile * kTile], srr[kTile * kTile], slr[kTile * kTile];
+    int32_t sr[kTile * kTileStride], srr[kTile * kTileStride], slr[kTile * kTileStride];
     blockSums(&lv_[0][0], &rv_[0][0], ny, nx, k_, lanes, sr, srr, slr);
     // Windows whose right window leaves the image get zero right sums (vr = 0: ZNCC -2, never
     // beating anything).
@@ -321,96 +401,187 @@ class WindowCache {
       for (int oy = 0; oy < ny; ++oy) {
         for (int ox = 0; ox < nx; ++ox) {
           if (ox >= ox_lo && ox < ox_hi) continue;
-          sr[oy * kTile + ox] = srr[oy * kTile + ox] = 0;
+          sr[oy * kTileStride + ox] = srr[oy * kTileStride + ox] = 0;
         }
       }
     }
     const int32_t n = k_ * k_;
-    if (nx == kTile) {
-      windowParts(n, l.a, l.b, sr, srr, slr, ny * kTile, t.a, t.b, t.c, t.ncc);
-    } else {
-      for (int oy = 0; oy < ny; ++oy) {
-        const int o = oy * kTile;
-        windowParts(n, l.a + o, l.b + o, sr + o, srr + o, slr + o, nx, t.a + o, t.b + o, t.c + o,
-                    t.ncc + o);
-      }
+    for (int oy = 0; oy < ny; ++oy) {
+      const int o = oy * kTileStride;
+      windowParts(n, l.a + o, l.b + o, sr + o, srr + o, slr + o, nx, t.a + o, t.b + o, t.c + o,
+                  t.ncc + o);
+      // Lanes past the windows are read (masked) as whole rows by ownRows / anyCandidate.
+      std::fill(t.ncc + o + nx, t.ncc + o + kTileStride, 0.f);
     }
   }
 
   const cv::Mat* left_ = nullptr;
   const cv::Mat* right_ = nullptr;
   int r_ = 0, k_ = 1, min_d_ = 0, nd_ = 1, tiles_x_ = 1, used_ = 0;
-  std::unordered_map<int64_t, int> index_;
-  std::vector<std::unique_ptr<TileSums>> pool_;
+  // Hash table of the tiles held: 2^hash_bits_ slots, at least twice the most tiles ever held
+  // (kSoftMaxTiles plus one pixel's fetches: 2 per tested disparity, with the left tiles).
+  int hash_bits_ = 0;
+  std::vector<int64_t> keys_;
+  std::vector<int32_t> values_;
+  TileSums* tiles_ = nullptr;               // capacity(nd_) tiles
+  std::unique_ptr<TileSums[]> own_tiles_;  // without an arena
   alignas(32) int32_t lv_[kTileSpan][kTileLanes];
   alignas(32) int32_t rv_[kTileSpan][kTileLanes];
 };
 
+/// One pixel's K x K windows in the tiles of one disparity: window row oy starts at
+/// base[oy < split_y ? 0 : 1] + offset[oy] (a ZNCC row of a TileSums, read as kRowLanes lanes).
+struct PixelRows {
+  const int* offset;
+  int split_y, K;
+  ES_INLINE const float* row(const float* const* base, int oy) const {
+    return base[oy < split_y ? 0 : 1] + offset[oy];
+  }
+};
+
+/// A pixel's own ZNCC in each of its K x K windows: row oy, lane i < K of @p own (row stride
+/// kRowLanes) = the greater of lo and hi there (hi null: lo alone), as std::max. Rows are read
+/// as kRowLanes lanes; lanes >= K are masked. @p own_m gets own - kCandidateSlack (+inf in lanes
+/// >= K) for anyCandidate. Returns whether every window has own >= @p min_ncc and own > -2
+/// (not flat).
+constexpr float kCandidateSlack = 1e-4f;
+ES_KERNEL bool ownRows(const PixelRows& pr, const float* const* lo, const float* const* hi,
+                       float min_ncc, float* own, float* own_m) {
+  const int K = pr.K;
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8i zero = {0, 0, 0, 0, 0, 0, 0, 0};
+  const V8f vmin = splat8(min_ncc), flat = splat8(-2.f), slack = splat8(kCandidateSlack);
+  const V8f inf = splat8(std::numeric_limits<float>::infinity());
+  V8i bad = zero;
+  for (int oy = 0; oy < K; ++oy) {
+    const float* lo_row = pr.row(lo, oy);
+    const float* hi_row = hi != nullptr ? pr.row(hi, oy) : nullptr;
+    for (int h = 0; h < kRowLanes; h += 8) {
+      V8f v = load8(lo_row + h);
+      if (hi_row != nullptr) {
+        const V8f w = load8(hi_row + h);
+        v = v < w ? w : v;
+      }
+      const V8i in = (lane + h) < K;
+      bad |= in & ~((v >= vmin) & ~(v <= flat));
+      const V8f m = in ? v - slack : inf;
+      std::memcpy(own + oy * kRowLanes + h, &v, sizeof(v));
+      std::memcpy(own_m + oy * kRowLanes + h, &m, sizeof(m));
+    }
+  }
+  return !anySet(bad);
+}
+
+/// Whether any window of a competitor (tile ZNCC rows @p base, as in ownRows) has a ZNCC >=
+/// own_m = own - kCandidateSlack. A cheap necessary condition for beatsParts: where beatsParts
+/// holds, the true ZNCC is >= own up to a relative 1e-6 (its float squares and products) and the
+/// stored ZNCC is within 1e-6 of the true one, far inside the slack; a flat window (-2) never
+/// passes against own > -2 + slack. So a competitor without a candidate window never beats.
+ES_KERNEL bool anyCandidate(const PixelRows& pr, const float* const* base, const float* own_m) {
+  const V8i zero = {0, 0, 0, 0, 0, 0, 0, 0};
+  V8i any = zero;
+  for (int oy = 0; oy < pr.K; ++oy) {
+    const float* row = pr.row(base, oy);
+    for (int h = 0; h < kRowLanes; h += 8) {
+      any |= load8(row + h) >= load8(own_m + oy * kRowLanes + h);
+    }
+  }
+  return anySet(any);
+}
+
+/// Slot of one disparity for the competitor scans (see slotRow).
+ES_INLINE int32_t slotOf(float v, float v_lo, float v_hi, int slot_off) {
+  float x = v == v ? v : 0.f;
+  x = x < v_lo ? v_lo : x;
+  x = x > v_hi ? v_hi : x;
+  const bool neg = x < 0.f;
+  const int mag = static_cast<int>((neg ? -x : x) + 0.5f);
+  return (neg ? -mag : mag) + slot_off;
+}
+
+/// Slot of each disparity of a map row for the competitor scans: its value clamped to
+/// [v_lo, v_hi], rounded half away from zero (std::lround: |v| + 0.5 is exact here, then
+/// truncation) to c, and c + slot_off. NaN (never triggering, its slot is never read) gives
+/// slot_off. Eight lanes, the same operations as slotOf.
+ES_KERNEL void slotRow(const float* v, int n, float v_lo, float v_hi, int slot_off,
+                       int32_t* out) {
+  const V8f lo = splat8(v_lo), hi = splat8(v_hi), half = splat8(0.5f), zero = splat8(0.f);
+  const V8i off = {slot_off, slot_off, slot_off, slot_off, slot_off, slot_off, slot_off, slot_off};
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    V8f x = load8(v + i);
+    x = x == x ? x : zero;
+    x = x < lo ? lo : x;
+    x = x > hi ? hi : x;
+    const V8i neg = x < zero;
+    const V8i mag = __builtin_convertvector((neg ? -x : x) + half, V8i);
+    const V8i slot = (neg ? -mag : mag) + off;
+    std::memcpy(out + i, &slot, sizeof(slot));
+  }
+  for (; i < n; ++i) out[i] = slotOf(v[i], v_lo, v_hi, slot_off);
+}
+
 /// Constants of one flagged pixel's competitor scan (see verifyFlagged).
 struct ScanArgs {
   float d, below, above;  ///< the pixel's disparity and the map test's thresholds
-  float v_lo, v_hi;       ///< disparities are clamped to these before rounding
-  int slot_off;           ///< slot of rounded disparity c = c + slot_off
   int no_slot;            ///< larger than any slot
 };
 
 /// The whole competitor scan of one pixel, eight neighbours per vector, rows of @p len
-/// neighbours read from @p base (@p stride floats apart; the map padded with NaN, which never
-/// triggers, so no clamping to the image and whole vectors past len read only padding or are
-/// masked out). slot of neighbour i = 0 when it does not trigger the test, else c + slot_off for
-/// its rounded disparity c; every row's slots are marked in @p mark (slot 0 included, cleared by
-/// the caller). The triggering neighbours' offsets (dx0 + i, dy0 + row) are summed into *sum_dx,
-/// *sum_dy and their slot range kept in *slot_min / *slot_max.
-ES_KERNEL void scanBlock(const ScanArgs& a, const float* base, size_t stride, int rows, int len,
-                         int dx0, int dy0, uint8_t* mark, int* sum_dx, int* sum_dy, int* slot_min,
-                         int* slot_max) {
+/// neighbours read from @p base and their slots (slotRow) from @p slot_base (both @p stride
+/// elements apart; the map padded with NaN, which never triggers, so no clamping to the image
+/// and whole vectors past len read only padding or are masked out). slot of neighbour i = 0
+/// when it does not trigger the test, else its slotRow value; every row's slots are marked in
+/// @p mark (slot 0 included, cleared by the caller). The triggering neighbours' offsets
+/// (dx0 + i, dy0 + row) are summed into *sum_dx, *sum_dy and their slot range kept in
+/// *slot_min / *slot_max.
+ES_KERNEL void scanBlock(const ScanArgs& a, const float* base, const int32_t* slot_base,
+                         size_t stride, int rows, int len, int dx0, int dy0, uint8_t* mark,
+                         int* sum_dx, int* sum_dy, int* slot_min, int* slot_max) {
   const V8f d = splat8(a.d), below = splat8(a.below), above = splat8(a.above);
-  const V8f v_lo = splat8(a.v_lo), v_hi = splat8(a.v_hi), half = splat8(0.5f), zero_f = splat8(0.f);
-  const V8i slot_off = {a.slot_off, a.slot_off, a.slot_off, a.slot_off,
-                        a.slot_off, a.slot_off, a.slot_off, a.slot_off};
   const V8i no_slot = {a.no_slot, a.no_slot, a.no_slot, a.no_slot,
                        a.no_slot, a.no_slot, a.no_slot, a.no_slot};
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
   const V8i lenv = {len, len, len, len, len, len, len, len};
   const V8i zero = {0, 0, 0, 0, 0, 0, 0, 0};
-  V8i vmin = no_slot, vmax = zero, vdx = zero;
-  int sdy = 0;
+  V8i vmin = no_slot, vmax = zero, vdx = zero, vdy = zero;
   alignas(32) int32_t slots[2 * (kMaxHalf + 1) + 8];
   for (int j = 0; j < rows; ++j) {
     const float* row = base + j * stride;
-    V8i cnt = zero;
+    const int32_t* srow = slot_base + j * stride;
+    const V8i dy = {dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j};
+    V8i any = zero;
     for (int i = 0; i < len; i += 8) {
       const V8f v = load8(row + i);
+      V8i s;
+      std::memcpy(&s, srow + i, sizeof(s));
       const V8i idx = lane + i;
       // NaN: both comparisons false.
       const V8i t = ((d - v > below) | (v - d > above)) & (idx < lenv);
-      V8f vc = t ? v : d;
-      vc = vc < v_lo ? v_lo : vc;
-      vc = vc > v_hi ? v_hi : vc;
-      // std::lround (half away from zero): |vc| + 0.5 is exact here, then truncation.
-      const V8i neg = vc < zero_f;
-      const V8i mag = __builtin_convertvector((neg ? -vc : vc) + half, V8i);
-      const V8i c = neg ? -mag : mag;
-      const V8i slot = t ? c + slot_off : zero;
+      const V8i slot = t & s;  // t is -1 in triggering lanes
       std::memcpy(slots + i, &slot, sizeof(slot));
-      cnt -= t;  // t is -1 in triggering lanes
+      any |= t;
       vdx += t & (idx + dx0);
+      vdy += t & dy;
       vmin = (t ? slot : no_slot) < vmin ? (t ? slot : no_slot) : vmin;
       vmax = slot > vmax ? slot : vmax;
     }
-    const int row_count =
-        cnt[0] + cnt[1] + cnt[2] + cnt[3] + cnt[4] + cnt[5] + cnt[6] + cnt[7];
-    if (row_count == 0) continue;
-    sdy += row_count * (dy0 + j);
-    for (int i = 0; i < len; ++i) mark[slots[i]] = 1;
+    if (!anySet(any)) continue;
+    // Only the vectors holding a triggering neighbour (slot >= 1); lanes past len hold slot 0.
+    for (int i = 0; i < len; i += 8) {
+      V8i sl;
+      std::memcpy(&sl, slots + i, sizeof(sl));
+      if (!anySet(sl)) continue;
+      for (int k = 0; k < 8; ++k) mark[slots[i + k]] = 1;
+    }
   }
   int smin = *slot_min, smax = *slot_max;
   for (int i = 0; i < 8; ++i) {
     smin = std::min(smin, vmin[i]);
     smax = std::max(smax, vmax[i]);
     *sum_dx += vdx[i];
+    *sum_dy += vdy[i];
   }
-  *sum_dy += sdy;
   *slot_min = smin;
   *slot_max = smax;
 }
@@ -430,8 +601,8 @@ struct VerifyScratch {
 /// disparity (the better of the two integers around the sub-pixel value) a ZNCC >= min_ncc and a
 /// higher ZNCC than every competitor. Reads only the images and the map before the step.
 bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& disparity,
-                   const cv::Mat& padded, int pad, const Flagged& f, float below, float above,
-                   VerifyScratch& sc) {
+                   const cv::Mat& padded, const cv::Mat& padded_slot, int pad, const Flagged& f,
+                   float below, float above, VerifyScratch& sc) {
   const int r = mp.edge_verify_radius_px;
   const int W = left.cols, H = left.rows;
   if (f.x - 2 * r < 0 || f.x + 2 * r > W - 1 || f.y - 2 * r < 0 || f.y + 2 * r > H - 1) {
@@ -444,51 +615,41 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
   // most decisive first: the own ZNCC of every window (needs no competitors; a fattened pixel
   // usually fails it in the windows lying on its true surface), then the competitors.
   //
-  // Every window containing the pixel: top-left corners (x - 2 r .. x, y - 2 r .. y), lying in
-  // at most 2 x 2 tiles (2 r + 1 < kTile).
+  // Every window containing the pixel: top-left corners (x - 2 r .. x, y - 2 r .. y), in tile
+  // column tx (a tile row holds its block's corners and the 2 r after them), in tile rows ty0
+  // (window rows oy < split_y) and ty1.
   const int K = 2 * r + 1;
   const int wx0 = f.x - 2 * r, wy0 = f.y - 2 * r;
-  const int tx0 = wx0 / kTile, ty0 = wy0 / kTile;
-  const int ntx = f.x / kTile - tx0 + 1, nty = f.y / kTile - ty0 + 1;
+  const int tx = wx0 / kTile, ty0 = wy0 / kTile, ty1 = f.y / kTile;
+  const int split_y = std::min(K, (ty0 + 1) * kTile - wy0);
+  // Offset of window row oy's first window in its tile.
+  int offset[kMaxSide];
+  for (int oy = 0; oy < K; ++oy) {
+    const int wy = wy0 + oy;
+    offset[oy] = (wy - (oy < split_y ? ty0 : ty1) * kTile) * kTileStride + (wx0 - tx * kTile);
+  }
   WindowCache& cache = sc.cache;
   cache.beginPixel();
-  const TileSums* t[2][2];
+  const TileSums* t[2];  // tile rows ty0 and ty1 at the disparity fetched last
   auto fetch = [&](int q) {
-    for (int j = 0; j < nty; ++j) {
-      for (int i = 0; i < ntx; ++i) t[j][i] = &cache.tile(tx0 + i, ty0 + j, q);
-    }
+    t[0] = &cache.tile(tx, ty0, q);
+    t[1] = ty1 != ty0 ? &cache.tile(tx, ty1, q) : t[0];
   };
-  // Row oy of the pixel's windows in at most two tile-aligned segments: windows ox < split lie in
-  // tile column 0 (from index *i0), the others in tile column 1 (from index *i1).
-  const int split = std::min(K, (tx0 + 1) * kTile - wx0);
-  auto segments = [&](int oy, int* j, int* i0, int* i1) {
-    const int wy = wy0 + oy;
-    *j = wy / kTile - ty0;
-    const int row = (wy - (ty0 + *j) * kTile) * kTile;
-    *i0 = row + (wx0 - tx0 * kTile);
-    *i1 = row - split;  // tile column 1 starts at window ox = split
-  };
-  float own[kMaxSide * kMaxSide];
+  auto tileOf = [&](int oy) { return t[oy < split_y ? 0 : 1]; };
+  const PixelRows pr{offset, split_y, K};
+  alignas(32) float own[kMaxSide * kRowLanes];
+  alignas(32) float own_m[kMaxSide * kRowLanes];
+  const float* lo_base[2];
+  const float* hi_base[2];
   fetch(q_lo);
-  for (int oy = 0; oy < K; ++oy) {
-    int j, i0, i1;
-    segments(oy, &j, &i0, &i1);
-    for (int ox = 0; ox < split; ++ox) own[oy * K + ox] = t[j][0]->ncc[i0 + ox];
-    for (int ox = split; ox < K; ++ox) own[oy * K + ox] = t[j][1]->ncc[i1 + ox];
-  }
+  lo_base[0] = t[0]->ncc;
+  lo_base[1] = t[1]->ncc;
   if (q_hi != q_lo) {
     fetch(q_hi);
-    for (int oy = 0; oy < K; ++oy) {
-      int j, i0, i1;
-      segments(oy, &j, &i0, &i1);
-      float* o = own + oy * K;
-      for (int ox = 0; ox < split; ++ox) o[ox] = std::max(o[ox], t[j][0]->ncc[i0 + ox]);
-      for (int ox = split; ox < K; ++ox) o[ox] = std::max(o[ox], t[j][1]->ncc[i1 + ox]);
-    }
+    hi_base[0] = t[0]->ncc;
+    hi_base[1] = t[1]->ncc;
   }
-  for (int i = 0; i < K * K; ++i) {
-    if (!(own[i] >= min_ncc) || own[i] <= -2.f) return false;
-  }
+  if (!ownRows(pr, lo_base, q_hi != q_lo ? hi_base : nullptr, min_ncc, own, own_m)) return false;
 
   // Competitors from the neighbourhood the map test looked at. The rounded disparities of the
   // triggering neighbours are marked in a table (a set: the pixels' order cannot matter), in a
@@ -501,14 +662,13 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
     sc.mark.assign(nd + 5, 0);
     sc.seen.assign(nd, 0);
   }
-  const float v_lo = static_cast<float>(mp.min_disparity - 2);
-  const float v_hi = static_cast<float>(mp.max_disparity + 2);
   const int slot_off = 3 - mp.min_disparity;
   int sum_dx = 0, sum_dy = 0;  // where the triggering neighbours lie, relative to the pixel
   int slot_min = nd + 5, slot_max = 0;
   uint8_t* mark = sc.mark.data();
-  const ScanArgs sa{d, below, above, v_lo, v_hi, slot_off, nd + 5};
-  scanBlock(sa, padded.ptr<float>(pad + f.y - f.half) + pad + f.x - f.half, padded.step1(),
+  const ScanArgs sa{d, below, above, nd + 5};
+  scanBlock(sa, padded.ptr<float>(pad + f.y - f.half) + pad + f.x - f.half,
+            padded_slot.ptr<int32_t>(pad + f.y - f.half) + pad + f.x - f.half, padded.step1(),
             2 * f.half + 1, 2 * f.half + 1, -f.half, -f.half, mark, &sum_dx, &sum_dy, &slot_min,
             &slot_max);
   for (int slot = std::max(2, slot_min); slot <= std::min(nd + 3, slot_max); ++slot) {
@@ -525,30 +685,27 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
   for (int q : sc.alts) sc.seen[q - mp.min_disparity] = 0;
 
   // Each competitor first in the window shifted furthest towards the triggering neighbours
-  // (where a competitor usually wins if it wins anywhere), then in every window.
-  const int probe = (sum_dy > 0 ? 2 * r : sum_dy < 0 ? 0 : r) * K +
-                    (sum_dx > 0 ? 2 * r : sum_dx < 0 ? 0 : r);
-  const int probe_y = probe / K, probe_x = probe % K;
+  // (where a competitor usually wins if it wins anywhere), then in every window: a cheap
+  // necessary condition over all of them (anyCandidate), the exact comparison only where it
+  // holds.
+  const int probe_y = sum_dy > 0 ? 2 * r : sum_dy < 0 ? 0 : r;
+  const int probe_x = sum_dx > 0 ? 2 * r : sum_dx < 0 ? 0 : r;
+  const float own_probe = own[probe_y * kRowLanes + probe_x];
   for (int q : sc.alts) {
     fetch(q);
-    int j, i0, i1;
-    segments(probe_y, &j, &i0, &i1);
-    const TileSums* tp = probe_x < split ? t[j][0] : t[j][1];
-    const int ip = probe_x < split ? i0 + probe_x : i1 + probe_x;
-    if (beatsParts(tp->a[ip], tp->b[ip], tp->c[ip], own[probe])) return false;
+    const TileSums* tp = tileOf(probe_y);
+    const int ip = offset[probe_y] + probe_x;
+    if (beatsParts(tp->a[ip], tp->b[ip], tp->c[ip], own_probe)) return false;
   }
   for (int q : sc.alts) {
     fetch(q);
+    const float* q_base[2] = {t[0]->ncc, t[1]->ncc};
+    if (!anyCandidate(pr, q_base, own_m)) continue;
     for (int oy = 0; oy < K; ++oy) {
-      int j, i0, i1;
-      segments(oy, &j, &i0, &i1);
-      const TileSums* a = t[j][0];
-      if (anyBeats(a->a + i0, a->b + i0, a->c + i0, own + oy * K, split)) return false;
-      if (split < K) {
-        const TileSums* b = t[j][1];
-        // (i1 + split) first: i1 alone may be negative, and a pointer before the array is UB.
-        const int ib = i1 + split;
-        if (anyBeats(b->a + ib, b->b + ib, b->c + ib, own + oy * K + split, K - split)) {
+      const TileSums* tq = tileOf(oy);
+      const int o = offset[oy];
+      for (int ox = 0; ox < K; ++ox) {
+        if (beatsParts(tq->a[o + ox], tq->b[o + ox], tq->c[o + ox], own[oy * kRowLanes + ox])) {
           return false;
         }
       }
@@ -567,16 +724,12 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   const float inf = std::numeric_limits<float>::infinity();
   lo_src.create(H, W, CV_32F);
   hi_src.create(H, W, CV_32F);
-  for (int y = 0; y < H; ++y) {
-    const float* d = out.disparity.ptr<float>(y);
-    float* a = lo_src.ptr<float>(y);
-    float* b = hi_src.ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      const bool v = !std::isnan(d[x]);
-      a[x] = v ? d[x] : inf;
-      b[x] = v ? d[x] : -inf;
+  constexpr int kRowBlock = 32;  // rows per task of the per-row passes over the threads
+  cv::parallel_for_(cv::Range(0, (H + kRowBlock - 1) / kRowBlock), [&](const cv::Range& rg) {
+    for (int y = rg.start * kRowBlock; y < std::min(H, rg.end * kRowBlock); ++y) {
+      boundsRow(out.disparity.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
     }
-  }
+  });
   const bool on = mp.edge_disparity_jump_px > 0.0;
   const float below = on ? static_cast<float>(mp.edge_disparity_jump_px) : inf;
   const float above = !on ? inf
@@ -586,19 +739,32 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   const int margin = mp.edge_margin_px;
   const int limit_w = mp.edge_window_max_px;
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  // Rejections are applied after all window sizes are judged, so every test sees the same map.
-  reject.create(H, W, CV_8U);
-  reject.setTo(0);
-  // Pixels accepted per window size (the first window: nearly all of them; the larger ones: few).
-  // Counted first; the pixels themselves are listed only for the levels scanned directly.
+  // Rejections are applied after all window sizes are judged, so every test sees the same map:
+  // listed here (a pixel may be listed twice; applying is idempotent). @p reject serves as
+  // memory for the second chance (below), not as a mask.
+  std::vector<cv::Point> rejected;
+  // Pixels accepted per window size (the first window: nearly all of them; the larger ones: few),
+  // in one pass: the larger windows' pixels listed (and counted by their list), the first
+  // window's counted; its pixels are listed below only when few enough to be scanned directly.
+  std::vector<std::vector<cv::Point>> by_level(num_levels);
   std::vector<size_t> level_count(num_levels, 0);
-  for (int y = 0; y < H; ++y) {
-    const uint8_t* c = out.code.ptr<uint8_t>(y);
-    const uint8_t* k = window_idx.ptr<uint8_t>(y);
-    for (int x = 0; x < W; ++x) {
-      if (c[x] >= kCodeAcceptedBase) ++level_count[k[x]];
+  {
+    std::vector<uint8_t> sel(W + 8, 0);
+    for (int y = 0; y < H; ++y) {
+      const uint8_t* k = window_idx.ptr<uint8_t>(y);
+      level_count[0] += acceptedRow(out.code.ptr<uint8_t>(y), k, W, sel.data());
+      // The larger windows' pixels are few: skip eight clear pixels at a time.
+      for (int x0 = 0; x0 < W; x0 += 8) {
+        uint64_t word;
+        std::memcpy(&word, sel.data() + x0, sizeof(word));
+        if (word == 0) continue;
+        for (int x = x0; x < std::min(W, x0 + 8); ++x) {
+          if (sel[x]) by_level[k[x]].push_back(cv::Point(x, y));
+        }
+      }
     }
   }
+  for (int level = 1; level < num_levels; ++level) level_count[level] = by_level[level].size();
   auto levelCount = [&](int level) -> size_t {
     // The w_min test also serves edge_window_max_px for the pixels of every window size.
     return level == 0 && limit_w > 0 ? static_cast<size_t>(out.stats.total_pixels)
@@ -612,19 +778,14 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     const size_t side = static_cast<size_t>(levelSide(level));
     return !(levelCount(level) * side * side > static_cast<size_t>(H) * W * 8);
   };
-  std::vector<std::vector<cv::Point>> by_level(num_levels);
-  std::vector<uint8_t> listed(num_levels, 0);
-  bool any_listed = false;
-  for (int level = 0; level < num_levels; ++level) {
-    listed[level] = levelCount(level) > 0 && scanDirectly(level);
-    if (listed[level]) by_level[level].reserve(level_count[level]);
-    any_listed = any_listed || listed[level];
-  }
-  for (int y = 0; y < H && any_listed; ++y) {
-    const uint8_t* c = out.code.ptr<uint8_t>(y);
-    const uint8_t* k = window_idx.ptr<uint8_t>(y);
-    for (int x = 0; x < W; ++x) {
-      if (c[x] >= kCodeAcceptedBase && listed[k[x]]) by_level[k[x]].push_back(cv::Point(x, y));
+  if (levelCount(0) > 0 && scanDirectly(0)) {
+    by_level[0].reserve(level_count[0]);
+    for (int y = 0; y < H; ++y) {
+      const uint8_t* c = out.code.ptr<uint8_t>(y);
+      const uint8_t* k = window_idx.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (c[x] >= kCodeAcceptedBase && k[x] == 0) by_level[0].push_back(cv::Point(x, y));
+      }
     }
   }
   auto straddles = [&](float d, float a, float b) { return d - a > below || b - d > above; };
@@ -634,6 +795,17 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
                       right.type() == CV_8UC1 && left.size() == out.disparity.size() &&
                       right.size() == out.disparity.size();
   std::vector<Flagged> flagged;
+  // @p lo and @p hi (kept by the caller from frame to frame) hold the erosion and dilation of
+  // the map and, after the map test, the map framed in NaN and its slots for the competitor
+  // scans (verifyFlagged), at a size that does not change between calls: no fresh pages each
+  // frame. The frame is as wide as the widest neighbourhood of any level.
+  int pad = 0;
+  for (int level = 0; level < num_levels; ++level) pad = std::max(pad, levelSide(level) / 2);
+  const cv::Size padded_size(W + 2 * pad + 8, H + 2 * pad);
+  if (lo.size() != padded_size || lo.type() != CV_32F) lo.create(padded_size, CV_32F);
+  if (hi.size() != padded_size || hi.type() != CV_32S) hi.create(padded_size, CV_32S);
+  cv::Mat lo_map = lo(cv::Rect(0, 0, W, H));
+  cv::Mat hi_map(H, W, CV_32F, hi.data, hi.step);  // float view of hi's memory
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     const int half = w / 2 + margin;
@@ -648,22 +820,33 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
         if (verify) {
           flagged.push_back(Flagged{x, y, half});
         } else {
-          reject.at<uint8_t>(y, x) = 1;
+          rejected.push_back(cv::Point(x, y));
         }
       }
       if (all_levels && mp.window_min_px + k * mp.window_step_px > limit_w) {
-        reject.at<uint8_t>(y, x) = 1;
+        rejected.push_back(cv::Point(x, y));
       }
     };
     if (!scanDirectly(level)) {
       // Many pixels: separable erosion and dilation of the whole map.
       const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side));
-      cv::erode(lo_src, lo, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(inf));
-      cv::dilate(hi_src, hi, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT, cv::Scalar(-inf));
+      // The two as concurrent tasks (OpenCV runs each one's own loop inline when nested).
+      cv::parallel_for_(cv::Range(0, 2), [&](const cv::Range& rg) {
+        for (int i = rg.start; i < rg.end; ++i) {
+          if (i == 0) {
+            cv::erode(lo_src, lo_map, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
+                      cv::Scalar(inf));
+          } else {
+            cv::dilate(hi_src, hi_map, kernel, cv::Point(-1, -1), 1, cv::BORDER_CONSTANT,
+                       cv::Scalar(-inf));
+          }
+        }
+      });
+      CV_Assert(lo_map.data == lo.data && hi_map.data == hi.data);  // written in place
       std::vector<uint8_t> hits(W + 8, 0);
       for (int y = 0; y < H; ++y) {
-        const float* a = lo.ptr<float>(y);
-        const float* b = hi.ptr<float>(y);
+        const float* a = lo_map.ptr<float>(y);
+        const float* b = hi_map.ptr<float>(y);
         straddleRow(out.code.ptr<uint8_t>(y), window_idx.ptr<uint8_t>(y),
                     out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
                     hits.data());
@@ -678,54 +861,116 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
         }
       }
     } else {
-      // Few pixels: scan each one's window directly.
-      for (const cv::Point& p : by_level[level]) {
-        float a, b;
-        windowMinMax(lo_src, hi_src, std::max(0, p.x - half), std::min(W - 1, p.x + half),
-                     std::max(0, p.y - half), std::min(H - 1, p.y + half), &a, &b);
-        judge(p.x, p.y, a, b);
-      }
+      // Few pixels: scan each one's window directly, over the threads in fixed chunks; then
+      // judged in list order.
+      const std::vector<cv::Point>& pts = by_level[level];
+      std::vector<float> a(pts.size()), b(pts.size());
+      constexpr int kScanChunk = 1024;
+      const int num_chunks = static_cast<int>((pts.size() + kScanChunk - 1) / kScanChunk);
+      cv::parallel_for_(cv::Range(0, num_chunks), [&](const cv::Range& rg) {
+        const size_t e = std::min(pts.size(), static_cast<size_t>(rg.end) * kScanChunk);
+        for (size_t i = static_cast<size_t>(rg.start) * kScanChunk; i < e; ++i) {
+          const cv::Point& p = pts[i];
+          windowMinMax(lo_src, hi_src, std::max(0, p.x - half), std::min(W - 1, p.x + half),
+                       std::max(0, p.y - half), std::min(H - 1, p.y + half), &a[i], &b[i]);
+        }
+      });
+      for (size_t i = 0; i < pts.size(); ++i) judge(pts[i].x, pts[i].y, a[i], b[i]);
     }
   }
   if (!flagged.empty()) {
     // Every verdict reads only the images and the flagged pixel's own entry, so fixed chunks
     // over the threads give the same result whatever their number.
     std::vector<uint8_t> keep(flagged.size(), 0);
-    // The map framed in NaN (never triggering) for the competitor scans: no clamping to the
-    // image, and whole vectors may read past a row's end (8 columns more on the right).
-    int pad = 0;
-    for (const Flagged& f : flagged) pad = std::max(pad, f.half);
-    cv::Mat padded(H + 2 * pad, W + 2 * pad + 8, CV_32F, cv::Scalar(nan));
-    out.disparity.copyTo(padded(cv::Rect(pad, pad, W, H)));
+    // For the competitor scans, in row blocks over the threads: in lo the map framed in NaN
+    // (never triggering: no clamping to the image, and whole vectors may read past a row's end,
+    // 8 columns more on the right; every flagged pixel's neighbourhood, half <= pad, lies
+    // inside), in hi the slot of each of its values (slotRow; valid centres min - 1 .. max + 1
+    // in slots 2 .. nd + 3), once per map pixel instead of once per scan.
+    const cv::Mat& padded = lo;
+    const cv::Mat& padded_slot = hi;
+    CV_Assert(padded_slot.step1() == padded.step1());
+    cv::parallel_for_(cv::Range(0, (padded.rows + kRowBlock - 1) / kRowBlock),
+                      [&](const cv::Range& rg) {
+      for (int y = rg.start * kRowBlock; y < std::min(padded.rows, rg.end * kRowBlock); ++y) {
+        float* row = lo.ptr<float>(y);
+        if (y < pad || y >= pad + H) {
+          std::fill(row, row + padded.cols, nan);
+        } else {
+          std::fill(row, row + pad, nan);
+          std::memcpy(row + pad, out.disparity.ptr<float>(y - pad), sizeof(float) * W);
+          std::fill(row + pad + W, row + padded.cols, nan);
+        }
+        slotRow(row, padded.cols, static_cast<float>(mp.min_disparity - 2),
+                static_cast<float>(mp.max_disparity + 2), 3 - mp.min_disparity,
+                hi.ptr<int32_t>(y));
+      }
+    });
+    // Flagged pixels in tile-major order (kTile x kTile blocks, row-major within a block), so
+    // that a chunk's pixels share the WindowCache's tiles; a counting sort (stable).
+    {
+      const int bx = (W + kTile - 1) / kTile;
+      const int nb = bx * ((H + kTile - 1) / kTile);
+      std::vector<int> start(nb + 1, 0);
+      for (const Flagged& f : flagged) ++start[(f.y / kTile) * bx + f.x / kTile + 1];
+      for (int b = 0; b < nb; ++b) start[b + 1] += start[b];
+      std::vector<Flagged> sorted(flagged.size());
+      for (const Flagged& f : flagged) sorted[start[(f.y / kTile) * bx + f.x / kTile]++] = f;
+      flagged.swap(sorted);
+    }
+    // The scratch (above all its window cache, valid for the whole call: same images) is handed
+    // from one chunk to the next instead of being rebuilt for every stripe OpenCV hands out.
+    std::mutex scratch_mutex;
+    std::vector<std::unique_ptr<VerifyScratch>> scratch_pool;
+    // The tiles' memory: @p reject (not needed as a mask), one row per cache, for one cache per
+    // thread. The caller keeps it from frame to frame, so its pages stay mapped instead of being
+    // returned to the system and faulted in again at every call (fresh memory per call cost up
+    // to a quarter of this step's time in page faults on the surgical sequence). Caches beyond
+    // it allocate their own.
+    const int nd = mp.max_disparity - mp.min_disparity + 1;
+    const int cache_bytes = WindowCache::capacity(nd) * static_cast<int>(sizeof(TileSums));
     constexpr int kChunk = 256;
     const int num_chunks = static_cast<int>((flagged.size() + kChunk - 1) / kChunk);
+    const int arena_caches = std::max(1, std::min(cv::getNumThreads(), num_chunks));
+    if (!(reject.type() == CV_8U && reject.cols == cache_bytes && reject.rows >= arena_caches)) {
+      reject.create(arena_caches, cache_bytes, CV_8U);
+    }
+    int arena_used = 0;
     cv::parallel_for_(cv::Range(0, num_chunks), [&](const cv::Range& rg) {
-      VerifyScratch sc;
-      sc.cache.reset(left, right, mp.edge_verify_radius_px, mp.min_disparity,
-                     mp.max_disparity - mp.min_disparity + 1);
+      std::unique_ptr<VerifyScratch> sc;
+      TileSums* tiles = nullptr;
+      {
+        std::lock_guard<std::mutex> lock(scratch_mutex);
+        if (!scratch_pool.empty()) {
+          sc = std::move(scratch_pool.back());
+          scratch_pool.pop_back();
+        } else if (arena_used < reject.rows) {
+          // Trivial types (arrays of int32 and float) in memory aligned for them.
+          tiles = reinterpret_cast<TileSums*>(reject.ptr(arena_used++));
+        }
+      }
+      if (!sc) {
+        sc.reset(new VerifyScratch);
+        sc->cache.reset(left, right, mp.edge_verify_radius_px, mp.min_disparity, nd, tiles);
+      }
       for (int c = rg.start; c < rg.end; ++c) {
         const size_t e = std::min(flagged.size(), static_cast<size_t>(c + 1) * kChunk);
         for (size_t i = static_cast<size_t>(c) * kChunk; i < e; ++i) {
-          keep[i] = verifyFlagged(mp, left, out.disparity, padded, pad, flagged[i], below,
-                                  above, sc);
+          keep[i] = verifyFlagged(mp, left, out.disparity, padded, padded_slot, pad, flagged[i],
+                                  below, above, *sc);
         }
       }
+      std::lock_guard<std::mutex> lock(scratch_mutex);
+      scratch_pool.push_back(std::move(sc));
     });
     for (size_t i = 0; i < flagged.size(); ++i) {
-      if (!keep[i]) reject.at<uint8_t>(flagged[i].y, flagged[i].x) = 1;
+      if (!keep[i]) rejected.push_back(cv::Point(flagged[i].x, flagged[i].y));
     }
   }
-  for (int y = 0; y < H; ++y) {
-    const uint8_t* rj = reject.ptr<uint8_t>(y);
-    float* d = out.disparity.ptr<float>(y);
-    float* cf = out.confidence.ptr<float>(y);
-    uint8_t* c = out.code.ptr<uint8_t>(y);
-    for (int x = 0; x < W; ++x) {
-      if (!rj[x]) continue;
-      d[x] = nan;
-      cf[x] = 0.f;
-      c[x] = kCodeRejectEdge;
-    }
+  for (const cv::Point& p : rejected) {
+    out.disparity.at<float>(p.y, p.x) = nan;
+    out.confidence.at<float>(p.y, p.x) = 0.f;
+    out.code.at<uint8_t>(p.y, p.x) = kCodeRejectEdge;
   }
 }
 

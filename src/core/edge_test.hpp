@@ -16,7 +16,10 @@ namespace endo_stereo {
 /// matched 8-bit images, CV_8UC1) to the disparities of the neighbours that flagged it. Judged on
 /// the map before the step (order-independent; output independent of the thread count).
 /// @p window_idx holds each accepted pixel's window index; @p num_levels the number of window
-/// sizes; the remaining Mats are scratch.
+/// sizes; the remaining Mats are scratch, best kept by the caller from call to call: their
+/// memory is reused (@p lo, @p hi: the erosion / dilation of the map, then the padded map and
+/// its competitor slots; @p reject: the window cache of the second chance, about 17 MiB per
+/// thread with 64 disparities, touched as needed).
 void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& right,
                           int num_levels, const cv::Mat& window_idx, MatchResult& out,
                           cv::Mat& lo_src, cv::Mat& hi_src, cv::Mat& lo, cv::Mat& hi,
