@@ -184,7 +184,7 @@ ES_KERNEL void windowParts(int32_t n, const int32_t* sl, const int32_t* sll, con
              std::sqrt(static_cast<float>(vl[i]) * static_cast<float>(vr[i]));
   }
   for (int i = 0; i < count; ++i) {
-    ncc[i] = (vl[i] > 0) & (vr[i] > 0) ? ncc[i] : -2.f;
+    ncc[i] = ((vl[i] > 0) & (vr[i] > 0)) ? ncc[i] : -2.f;
   }
 }
 
