@@ -6,7 +6,7 @@
 //   every window sum of products of a window up to 32 x 32 stays below 2^24: window sums are exact
 //   integers in float arithmetic. Running sums, fresh sums and any order of summation give
 //   bit-identical values, so the output cannot depend on how rows are split between threads.
-//   Window means and variances come from integral images (exact in int32 / double).
+//   Window means and variances come from integral images (int32, exact: see boxAt).
 // - Rows are processed in fixed stripes (cv::parallel_for_ over stripe indices that do not depend
 //   on the thread count). For one window size, a row is matched by one of two engines:
 //   * dense rows (most pixels still undecided: always at the first window), full search: the
@@ -499,7 +499,8 @@ struct FrameData {
   cv::Mat int_l, int_r;  // CV_32S integral images of the 8-bit views
   cv::Mat lap_l, lap_r;  // CV_16S 3x3 Laplacian on 0..255 (|value| <= 1020)
   // Integral images of the squares, of the Laplacian and of its square, CV_32S taken modulo
-  // 2^32 (wrappedIntegrals): read only through window differences (boxAt/boxRow), which are exact.
+  // 2^32 (wrappedIntegrals): read only through window differences (boxAt, statsRowInt,
+  // gammaRowInt), which are exact.
   cv::Mat sq_l, sq_r, int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;
   cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
 };
@@ -585,8 +586,8 @@ ES_KERNEL void addRows(int n, uint32_t* __restrict out, const uint32_t* __restri
 
 /// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v^2 for the 8-bit
 /// image @p img and of g and g^2 for its Laplacian @p lap (CV_16S), all modulo 2^32: half the
-/// memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt/boxRow
-/// (see boxAt).
+/// memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt and
+/// the row kernels (see boxAt).
 void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::Mat& int_lap,
                       cv::Mat& sq_lap) {
   const int H = img.rows, W = img.cols;
@@ -626,7 +627,7 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::M
 }
 
 /// Left statistics of column x of row y (inside the border), into s.maps. The same expressions
-/// as statsRow/gammaRow, so lazily and row-wide computed values are identical.
+/// as statsRowInt/gammaRowInt, so lazily and row-wide computed values are identical.
 // n * sum(x^2) - sum(x)^2 is exact in double (integers below 2^53); the rest runs in float,
 // which vectorises twice as wide. Every path uses these two functions, so values agree.
 inline float invStd(double n, double sum, double sq) {
