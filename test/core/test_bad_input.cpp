@@ -126,6 +126,21 @@ void expectRefusedThenRecovers(Pipeline& pipeline, const StereoInput& bad,
   expectGoodPairProcessed(pipeline, bad.stamp_s + 0.04, what);
 }
 
+/// Writes an OpenCV stereo calibration file (YAML) of a 64x48 rectified rig with no D1/D2; the
+/// T block's header lines (rows, cols) are @p t_shape.
+void writeOpenCvStereoFile(const std::string& path,
+                           const std::string& t_shape = "   rows: 3\n   cols: 1\n") {
+  std::ofstream os(path);
+  os << "%YAML:1.0\n---\nimage_width: 64\nimage_height: 48\n";
+  for (const char* m : {"M1", "M2"}) {
+    os << m << ": !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+       << "   data: [ 80., 0., 32., 0., 80., 24., 0., 0., 1. ]\n";
+  }
+  os << "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
+     << "   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n";
+  os << "T: !!opencv-matrix\n" << t_shape << "   dt: d\n   data: [ -0.005, 0., 0. ]\n";
+}
+
 // --- Images -------------------------------------------------------------------------------------
 
 TEST(BadImage, EmptyLeftOrRightIsRefusedByName) {
@@ -412,17 +427,7 @@ TEST(BadCalibration, LeftAndRightOfDifferentSizesAreRefused) {
 // (an empty cv::Mat's begin/end): SIGFPE instead of a calibration without distortion.
 TEST(FuzzOpenCvStereo, FileWithoutDistortionLoads) {
   const std::string path = "/tmp/test_bad_input_" + std::to_string(::getpid()) + ".yaml";
-  {
-    std::ofstream os(path);
-    os << "%YAML:1.0\n---\nimage_width: 64\nimage_height: 48\n";
-    for (const char* m : {"M1", "M2"}) {
-      os << m << ": !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-         << "   data: [ 80., 0., 32., 0., 80., 24., 0., 0., 1. ]\n";
-    }
-    os << "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-       << "   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n";
-    os << "T: !!opencv-matrix\n   rows: 3\n   cols: 1\n   dt: d\n   data: [ -0.005, 0., 0. ]\n";
-  }
+  writeOpenCvStereoFile(path);
   StereoCalibration calib;
   std::string error;
   const bool ok = loadOpenCvStereoYaml(path, calib, &error);
@@ -456,17 +461,7 @@ TEST(FuzzOpenCvStereo, EmptyKeyIsAnErrorNotAnException) {
 // loader now checks the declared shape against the data first and names the field.
 TEST(FuzzOpenCvStereo, ImpossibleMatrixShapeIsRefusedBeforeAllocating) {
   const std::string path = "/tmp/test_bad_input_shape_" + std::to_string(::getpid()) + ".yaml";
-  auto write = [&](const std::string& t_block) {
-    std::ofstream os(path);
-    os << "%YAML:1.0\n---\nimage_width: 64\nimage_height: 48\n";
-    for (const char* m : {"M1", "M2"}) {
-      os << m << ": !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-         << "   data: [ 80., 0., 32., 0., 80., 24., 0., 0., 1. ]\n";
-    }
-    os << "R: !!opencv-matrix\n   rows: 3\n   cols: 3\n   dt: d\n"
-       << "   data: [ 1., 0., 0., 0., 1., 0., 0., 0., 1. ]\n";
-    os << "T: !!opencv-matrix\n" << t_block << "   dt: d\n   data: [ -0.005, 0., 0. ]\n";
-  };
+  auto write = [&](const std::string& t_shape) { writeOpenCvStereoFile(path, t_shape); };
   StereoCalibration calib;
   std::string error;
   write("   rows: 2147483647\n   cols: 1\n");
