@@ -1981,69 +1981,36 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   uint8_t* stw = c.state->ptr<uint8_t>(y);
   uint8_t* widx = c.window_idx->ptr<uint8_t>(y);
   const float eps = static_cast<float>(c.mp->epsilon_px);
-  if (dense) {
-    // The same decisions without branches on the criteria (every value is at hand in a dense
-    // row; a pixel without a peak has best_d 0, so its reads stay inside the row).
-    const uint8_t accepted = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
-    const bool subpixel = c.mp->subpixel;
-    for (const int x : s.active) {
-      const float b = s.best[x];
-      const int bd = static_cast<int>(s.best_d[x]);
-      const int q = x - bd;
-      const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
-      const float delta = b - comp;
-      const bool no_peak = b == kNegInf;
-      const bool flat = !(s.maps.gamma_r[q] > gmin);
-      const bool gap = !(delta > delta_min) || b < minNcc(x);
-      const bool lr = !(std::fabs(static_cast<float>(bd) - s.rb_d[q]) < eps);
-      const uint8_t cd = no_peak ? uint8_t{kCodeNoPeak}
-                         : flat  ? uint8_t{kCodeRejectStructure}
-                         : gap   ? uint8_t{kCodeRejectPeakGap}
-                         : lr    ? uint8_t{kCodeRejectLeftRight}
-                                 : accepted;
-      code[x] = cd;
-      if (cd != accepted) continue;
-      float sub = 0.f;
-      if (subpixel) {
-        const float den = s.best_l[x] - 2.f * b + s.best_r[x];
-        if (den < 0.f) sub = std::clamp(0.5f * (s.best_l[x] - s.best_r[x]) / den, -0.5f, 0.5f);
-      }
-      disp[x] = static_cast<float>(bd) + sub;
-      conf[x] = std::clamp(delta, 0.f, 1.f);
-      stw[x] = 1;
-      widx[x] = static_cast<uint8_t>(c.level);
-    }
-    return;
-  }
-  for (int x : s.active) {
-    if (s.best[x] == kNegInf) {
-      code[x] = kCodeNoPeak;
-      continue;
-    }
+  // Without branches on the criteria. Every value a decision depends on is at hand: dense rows
+  // computed the whole row, sparse rows the structure values of every peak's right pixel and the
+  // right-to-left profiles of every pixel that passes all but the left-right check. Other reads
+  // (the right pixel of a pixel without a peak - best_d 0, so inside the row -, a right-to-left
+  // value behind a failed criterion) cannot change the code, which takes the first failure.
+  const uint8_t accepted = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
+  const bool subpixel = c.mp->subpixel;
+  for (const int x : s.active) {
+    const float b = s.best[x];
     const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
-    if (!dense) needGammaR(c, s, q, y);
-    if (!(s.maps.gamma_r[q] > gmin)) {
-      code[x] = kCodeRejectStructure;
-      continue;
-    }
     const float delta = peakGap(x);
-    if (!(delta > delta_min) || s.best[x] < minNcc(x)) {
-      code[x] = kCodeRejectPeakGap;
-      continue;
-    }
-    if (!(std::fabs(static_cast<float>(bd) - s.rb_d[q]) < eps)) {
-      code[x] = kCodeRejectLeftRight;
-      continue;
-    }
+    const bool no_peak = b == kNegInf;
+    const bool flat = !(s.maps.gamma_r[q] > gmin);
+    const bool gap = !(delta > delta_min) || b < minNcc(x);
+    const bool lr = !(std::fabs(static_cast<float>(bd) - s.rb_d[q]) < eps);
+    const uint8_t cd = no_peak ? uint8_t{kCodeNoPeak}
+                       : flat  ? uint8_t{kCodeRejectStructure}
+                       : gap   ? uint8_t{kCodeRejectPeakGap}
+                       : lr    ? uint8_t{kCodeRejectLeftRight}
+                               : accepted;
+    code[x] = cd;
+    if (cd != accepted) continue;
     float sub = 0.f;
-    if (c.mp->subpixel) {
-      const float den = s.best_l[x] - 2.f * s.best[x] + s.best_r[x];
+    if (subpixel) {
+      const float den = s.best_l[x] - 2.f * b + s.best_r[x];
       if (den < 0.f) sub = std::clamp(0.5f * (s.best_l[x] - s.best_r[x]) / den, -0.5f, 0.5f);
     }
     disp[x] = static_cast<float>(bd) + sub;
     conf[x] = std::clamp(delta, 0.f, 1.f);
-    code[x] = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
     stw[x] = 1;
     widx[x] = static_cast<uint8_t>(c.level);
   }
