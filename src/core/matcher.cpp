@@ -120,6 +120,7 @@ struct Scratch {
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
   std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi, rl_ds;
+  std::vector<int> vh_lo, vh_hi, vh_glo, vh_ghi;  // runRequests' sliding minimum / maximum
   // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
   // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
   // pixel q is then the sum of w whole columns (q - r .. q + r), not a diagonal through 64 + w
@@ -127,6 +128,11 @@ struct Scratch {
   std::vector<float> colsum_r;
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
+  // Right-to-left profiles of uniform rows: the window sums hr of right pixel rl_q on the
+  // disparity indices [rl_k0, rl_k1], slid to the next right pixel when it is rl_q + 1 in the
+  // same row (rl_stamp).
+  std::vector<float> hr;
+  int rl_q = -10, rl_k0 = 0, rl_k1 = -1, rl_stamp = -1;
   float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
   // Dense engine ("lanes over disparity"): vertical window sums of every column for the
   // disparity groups it needs, [column][dpad], carried down the stripe by running sums.
@@ -205,6 +211,9 @@ struct Scratch {
     req_k1.assign(w, -1);
     run_lo.assign(w, 0);
     run_hi.assign(w, 0);
+    // Run of up to w pixels, padded by 2r on each side and rounded up to a block of 2r + 1
+    // (r <= 16: windows up to 33 px).
+    for (auto* vec : {&vh_lo, &vh_hi, &vh_glo, &vh_ghi}) vec->assign(w + 4 * 17 + 34, 0);
     hot.reserve(w);
     colsum_r.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
     colr_row.assign(w, -10);
@@ -227,6 +236,8 @@ struct Scratch {
     lprof.assign(dpad + 24, 0.f);
     lmbuf.assign(dpad + 24, 0.f);
     hvec.assign(dpad + 8, 0.f);
+    hr.assign(dpad + 8, 0.f);
+    rl_stamp = -1;
     // 8 floats before (prof0[-1] is read, masked) and 16 after (whole groups past the end).
     prof.assign(dpad + 24, 0.f);
     prof0 = prof.data() + 8;
@@ -790,6 +801,29 @@ void rowMapsR(const LevelContext& c, Scratch& s, int y, int x0, int x1) {
     s.maps.sum_r_rev[W - 1 - x] = s.maps.sum_r[x];
     s.maps.inv_r_rev[W - 1 - x] = s.maps.inv_r[x];
     s.maps.stamp_r[x] = s.stamp;
+  }
+}
+
+/// Left NCC statistics of row y on the columns of [x0, x1] (inside the border) not yet computed
+/// for this row, vectorised per run of such columns, marked computed: the same values needMapL
+/// gives one by one (the lazy form cost a scalar box sum per column and was the larger part of
+/// the sparse rows' right-to-left profiles with per-pixel ranges).
+void ensureMapsL(const LevelContext& c, Scratch& s, int y, int x0, int x1) {
+  const double n = static_cast<double>(c.w) * c.w;
+  int* stamp = s.maps.stamp_l.data();
+  int x = x0;
+  while (x <= x1) {
+    if (stamp[x] == s.stamp) {
+      ++x;
+      continue;
+    }
+    int e = x;
+    while (e + 1 <= x1 && stamp[e + 1] != s.stamp) ++e;
+    statsRowInt(c.im->int_l, c.im->sq_l, y, c.r, x, e, n, s.maps.mean_l.data(),
+                s.maps.inv_l.data(), true);
+    invSqrtRow(e - x + 1, s.maps.inv_l.data() + x);
+    std::fill(stamp + x, stamp + e + 1, s.stamp);
+    x = e + 1;
   }
 }
 
@@ -1621,12 +1655,36 @@ void runRequests(const LevelContext& c, Scratch& s, size_t i, size_t j) {
       hi[x - a] = eh;
     }
   }
-  for (int x = a - r; x <= b + r; ++x) {
-    int l = kEmptyLo, h = kEmptyHi;
-    for (int xx = std::max(a, x - r); xx <= std::min(b, x + r); ++xx) {
-      l = std::min(l, lo[xx - a]);
-      h = std::max(h, hi[xx - a]);
+  // Column x = a - r + t reads the pixels [t - 2r, t] of the run (index x - a): a sliding minimum
+  // and maximum over 2r + 1 values, three passes whatever the window (van Herk / Gil-Werman).
+  const int m = b - a + 1, k = 2 * r + 1, len = m + 4 * r;
+  const int len_pad = (len + k - 1) / k * k;
+  int* pl = s.vh_lo.data();
+  int* ph = s.vh_hi.data();
+  int* gl = s.vh_glo.data();
+  int* gh = s.vh_ghi.data();
+  for (int j = 0; j < len_pad; ++j) {
+    const int i = j - 2 * r;
+    const bool in = (i >= 0) & (i < m);
+    pl[j] = in ? lo[in ? i : 0] : kEmptyLo;
+    ph[j] = in ? hi[in ? i : 0] : kEmptyHi;
+  }
+  for (int j0 = 0; j0 < len_pad; j0 += k) {
+    gl[j0] = pl[j0];
+    gh[j0] = ph[j0];
+    for (int j = j0 + 1; j < j0 + k; ++j) {  // prefix within the block
+      gl[j] = std::min(gl[j - 1], pl[j]);
+      gh[j] = std::max(gh[j - 1], ph[j]);
     }
+    for (int j = j0 + k - 2; j >= j0; --j) {  // suffix within the block, in place
+      pl[j] = std::min(pl[j], pl[j + 1]);
+      ph[j] = std::max(ph[j], ph[j + 1]);
+    }
+  }
+  for (int x = a - r; x <= b + r; ++x) {
+    const int t = x - (a - r);
+    int l = std::min(pl[t], gl[t + k - 1]);
+    int h = std::max(ph[t], gh[t + k - 1]);
     if (l > h) l = h = c.dmin;
     s.req_stamp[x] = s.stamp;
     s.req_k0[x] = ((l - c.dmin) / 8) * 8;
@@ -1656,6 +1714,8 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
         }
       }
       if (dlo <= dhi) rowMapsR(c, s, y, std::max(r, a - dhi), std::min(c.width - 1 - r, b - dlo));
+      // The run's own left statistics, at once.
+      ensureMapsL(c, s, y, a, b);
     }
     // Lanes the run's profiles read: the union of its columns' requests (every column of a
     // pixel's window holds that pixel's range).
@@ -1681,8 +1741,7 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
           nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
                      s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         } else {
-          needMapL(c, s, x, y);
-          // Right statistics of x - d for d = lo .. hi: mirrored, computed for the run above.
+          // Left statistics: computed for the run above. Right statistics of x - d for d = lo .. hi: mirrored, computed for the run above.
           const int m = c.width - 1 - x + lo;
           nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
                      s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
@@ -1703,6 +1762,19 @@ ES_KERNEL void nccSpan(int n, const float* __restrict h, const float* __restrict
                        const float* __restrict inv_l, float sum_r, float inv_r,
                        float* __restrict out) {
   for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l[i] * sum_r) * inv_l[i] * inv_r;
+}
+
+/// Index of the first greatest of v[0..n) (n >= 1, no NaN); v[n .. n + 7] is overwritten (the
+/// profile buffer is padded).
+ES_KERNEL int firstMax(float* __restrict v, int n) {
+  for (int i = n; i < n + 8; ++i) v[i] = kNegInf;
+  V8f m = splat8(kNegInf);
+  for (int i = 0; i < n; i += 8) m = max8(m, load8(v + i));
+  const V8f best = hmax8(m);
+  int i = 0;
+  while (!anyLane(load8(v + i) == best)) i += 8;
+  while (v[i] != best[0]) ++i;
+  return i;
 }
 
 /// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
@@ -1740,12 +1812,28 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   // it is x - d of a pixel whose right window fits).
   const int k0 = ((dv0 - c.dmin) / 8) * 8;
   const int k1 = std::min(s.dpad - 1, ((dv1 - c.dmin) / 8) * 8 + 7);
-  for (int qq = q - r; qq <= q + r; ++qq) ensureColumnR(c, s, qq, y, k0, k1);
-  float* h = s.hvec.data();
-  std::memcpy(h + k0, s.colsum_r.data() + static_cast<size_t>(q - r) * s.dpad + k0,
-              sizeof(float) * (k1 - k0 + 1));
-  for (int qq = q - r + 1; qq <= q + r; ++qq) {
-    vecAdd(k1 - k0 + 1, h + k0, s.colsum_r.data() + static_cast<size_t>(qq) * s.dpad + k0);
+  float* h;
+  const float* cs0 = s.colsum_r.data() + k0;
+  const size_t dp = static_cast<size_t>(s.dpad);
+  if (c.uniform_ranges && s.rl_stamp == s.stamp && s.rl_q == q - 1 && s.rl_k0 == k0 &&
+      s.rl_k1 == k1) {
+    // The previous right pixel's sums, slid by one column (its other columns are valid for this
+    // row on these disparities already). Exact: integer-valued sums.
+    ensureColumnR(c, s, q + r, y, k0, k1);
+    h = s.hr.data();
+    vecAddSub(k1 - k0 + 1, h + k0, cs0 + static_cast<size_t>(q + r) * dp,
+              cs0 + static_cast<size_t>(q - r - 1) * dp);
+  } else {
+    for (int qq = q - r; qq <= q + r; ++qq) ensureColumnR(c, s, qq, y, k0, k1);
+    h = c.uniform_ranges ? s.hr.data() : s.hvec.data();
+    std::memcpy(h + k0, cs0 + static_cast<size_t>(q - r) * dp, sizeof(float) * (k1 - k0 + 1));
+    for (int qq = q - r + 1; qq <= q + r; ++qq) vecAdd(k1 - k0 + 1, h + k0, cs0 + qq * dp);
+  }
+  if (c.uniform_ranges) {
+    s.rl_stamp = s.stamp;
+    s.rl_q = q;
+    s.rl_k0 = k0;
+    s.rl_k1 = k1;
   }
   const float sr = s.maps.sum_r[q], ir = s.maps.inv_r[q];
   // Left pixels inside the border: q + d in [r, W - 1 - r].
@@ -1753,26 +1841,28 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   float rv = kNegInf, rd = 0.f;
   if (!c.uniform_ranges) {
     needMapR(c, s, q, y);
-    const float sq = s.maps.sum_r[q], iq = s.maps.inv_r[q];
+    // The left statistics of the pixels q + dv0 .. q + dv1, vectorised, then the profile over
+    // that span in one pass; only the listed disparities compete.
+    ensureMapsL(c, s, y, q + dv0, q + dv1);
+    float* v = s.prof0;
+    nccSpan(dv1 - dv0 + 1, h + (dv0 - c.dmin), s.maps.mean_l.data() + q + dv0,
+            s.maps.inv_l.data() + q + dv0, s.maps.sum_r[q], s.maps.inv_r[q], v);
     for (const int d : s.rl_ds) {
-      needMapL(c, s, q + d, y);
-      const float v = nccValue(h[d - c.dmin], s.maps.mean_l[q + d], sq, s.maps.inv_l[q + d], iq);
-      if (v > rv) {
-        rv = v;
+      if (v[d - dv0] > rv) {
+        rv = v[d - dv0];
         rd = static_cast<float>(d);
       }
     }
   } else if (d0 <= d1) {
     float* v = s.prof0;
-    nccSpan(d1 - d0 + 1, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0,
-            s.maps.inv_l.data() + q + d0, sr, ir, v);
-    // With a full search every left pixel inside the border has d in its range.
-    for (int d = d0; d <= d1; ++d) {
-      if (v[d - d0] > rv) {
-        rv = v[d - d0];
-        rd = static_cast<float>(d);
-      }
-    }
+    const int n = d1 - d0 + 1;
+    nccSpan(n, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0, s.maps.inv_l.data() + q + d0,
+            sr, ir, v);
+    // With a full search every left pixel inside the border has d in its range: the highest
+    // value, at its smallest d (what "strict >, d increasing" keeps).
+    const int i = firstMax(v, n);
+    rv = v[i];
+    rd = static_cast<float>(d0 + i);
   }
   s.rb_v[q] = rv;
   s.rb_d[q] = rd;
