@@ -1306,6 +1306,24 @@ ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restr
   bv = gt ? mv : bv;
 }
 
+/// peakGroup on a group held in a register, its neighbours taken from the groups before and
+/// after by lane shifts. The dense engine stores a profile's groups just before it analyses
+/// them, and a load at prof + k - 1 straddles two of those stores, which the store buffer cannot
+/// forward (a stall per group); the values are the same.
+template <bool kMasked>
+ES_INLINE void peakGroupReg(V8f prev, V8f v, V8f next, V8i kk, V8i vklo, V8i vkhi, V8f& bv,
+                            V8f& sv, V8i& bk) {
+  const V8f left = __builtin_shufflevector(prev, v, 7, 8, 9, 10, 11, 12, 13, 14);
+  const V8f right = __builtin_shufflevector(v, next, 1, 2, 3, 4, 5, 6, 7, 8);
+  V8i mx = (v > left) & (v >= right);
+  if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
+  const V8f mv = mx ? v : splat8(kNegInf);
+  const V8i gt = mv > bv;
+  sv = gt ? bv : max8(sv, mv);
+  bk = gt ? kk : bk;
+  bv = gt ? mv : bv;
+}
+
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1, n >= 3), the same
 /// rules as the dense engines: per lane the best interior maximum (first of equal values), its
 /// index and the lane's best other maximum, then butterfly reductions. prof[-1] and whole groups
@@ -1511,13 +1529,22 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     if (!(a.act[x] > 0.f)) continue;
     V8f bv = vninf, sv = vninf;
     V8i bk = V8i{0, 0, 0, 0, 0, 0, 0, 0};
-    peakGroup<true>(8 * g0, kk0, vklo, vkhi, prof, bv, sv, bk);
+    // Groups g - 1, g, g + 1 in registers (whole vector loads: forwarded from the stores above);
+    // the lanes whose neighbour lies outside g0 .. g1 are masked (range ends).
     {
+      V8f prev = vninf, cur = load8(prof + 8 * g0);
+      V8f next = load8(prof + 8 * g0 + 8);
+      peakGroupReg<true>(prev, cur, next, kk0, vklo, vkhi, bv, sv, bk);
       V8i kk = kk0 + eight_i;
       for (int g = g0 + 1; g < g1; ++g, kk += eight_i) {
-        peakGroup<false>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+        prev = cur;
+        cur = next;
+        next = load8(prof + 8 * g + 8);
+        peakGroupReg<false>(prev, cur, next, kk, vklo, vkhi, bv, sv, bk);
       }
-      if (g1 > g0) peakGroup<true>(8 * g1, kk, vklo, vkhi, prof, bv, sv, bk);
+      if (g1 > g0) {
+        peakGroupReg<true>(cur, next, load8(prof + 8 * g1 + 8), kk, vklo, vkhi, bv, sv, bk);
+      }
     }
     // The highest maximum at its smallest index (lanes hold distinct indices); every other
     // maximum competes for second.
@@ -2106,6 +2133,33 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   }
 }
 
+/// Bytes of p[0..n) equal to v (a counting pass that vectorises; the per-pixel increments of a
+/// histogram did not).
+ES_KERNEL int64_t countEqual(const uint8_t* __restrict p, int n, int v) {
+  const uint8_t b = static_cast<uint8_t>(v);
+  int64_t total = 0;
+  for (int x0 = 0; x0 < n; x0 += 4096) {  // 32-bit partial counts cannot overflow
+    const int x1 = std::min(n, x0 + 4096);
+    int c = 0;
+    for (int x = x0; x < x1; ++x) c += p[x] == b;
+    total += c;
+  }
+  return total;
+}
+
+/// The valid pixels of a row (accepted or filled), counted; the confidence of every rejected
+/// pixel (not filled) set to 0.
+ES_KERNEL int64_t countValidZeroRejected(const uint8_t* __restrict cd, float* __restrict cf, int n) {
+  int c = 0;
+  for (int x = 0; x < n; ++x) {
+    const bool filled = cd[x] == kCodeFilled;
+    const bool rejected = (cd[x] < kNumRejectCodes) & !filled;
+    cf[x] = rejected ? 0.f : cf[x];
+    c += (cd[x] >= kCodeAcceptedBase) | filled;
+  }
+  return c;
+}
+
 class ThreadCountGuard {
  public:
   explicit ThreadCountGuard(int n) : old_(cv::getNumThreads()), active_(n > 0) {
@@ -2288,11 +2342,12 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   // Per block: accepted per window size (before the post-filters), then rejections and valid
   // pixels (after); summed over blocks.
   std::vector<MatchStats> block_stats(num_blocks);
+  const int n_levels = static_cast<int>(levels.size());
   forRowBlocks([&](int b, int y0, int y1) {
     for (int y = y0; y < y1; ++y) {
       const uint8_t* cd = out.code.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (cd[x] >= kCodeAcceptedBase) ++block_stats[b].accepted_per_window[cd[x] - kCodeAcceptedBase];
+      for (int l = 0; l < n_levels; ++l) {
+        block_stats[b].accepted_per_window[l] += countEqual(cd, W, kCodeAcceptedBase + l);
       }
     }
   });
@@ -2327,14 +2382,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
     MatchStats& st = block_stats[b];
     for (int y = y0; y < y1; ++y) {
       const uint8_t* cd = out.code.ptr<uint8_t>(y);
-      float* cf = out.confidence.ptr<float>(y);
-      for (int x = 0; x < W; ++x) {
-        if (cd[x] < kNumRejectCodes) {
-          ++st.rejected[cd[x]];
-          if (cd[x] != kCodeFilled) cf[x] = 0.f;
-        }
-        if (cd[x] >= kCodeAcceptedBase || cd[x] == kCodeFilled) ++st.valid_pixels;
-      }
+      for (int i = 0; i < kNumRejectCodes; ++i) st.rejected[i] += countEqual(cd, W, i);
+      st.valid_pixels += countValidZeroRejected(cd, out.confidence.ptr<float>(y), W);
     }
   });
   for (const MatchStats& st : block_stats) {
