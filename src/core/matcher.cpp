@@ -394,7 +394,7 @@ struct SliceArgs {
 // beyond), competes for the peak gap. Local maxima are never adjacent, so "outside +-1 px of the
 // best" holds by construction. Written once on GCC vector types (8 lanes: AVX2 in the avx2 clone,
 // two SSE halves otherwise) for the body, once in scalar form for the tail; the same lane by lane.
-template <bool kOwn, bool kRl>
+template <bool kOwn, bool kRl, int kW>
 ES_INLINE void sliceUpdate(const SliceArgs& g) {
   const float d = g.d, dm1 = g.d - 1.f;
   const float* __restrict vs = g.v;
@@ -415,7 +415,7 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
   float* __restrict second = g.second;
   float* __restrict rb_v = g.rb_v;
   float* __restrict rb_d = g.rb_d;
-  const int w = g.w;
+  const int w = kW > 0 ? kW : g.w;
   int i = 0;
   const int n = g.n;
   const V8f vd = splat8(d);
@@ -423,7 +423,20 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
   const V8f vninf = splat8(kNegInf);
   const V8f vzero = splat8(0.f);
   for (; i + 8 <= n; i += 8) {
-    const V8f hs = vs ? boxSum8(vs + i, w) : load8(h + i);
+    V8f hs;
+    if (kW > 0) {
+      // The window width known at compile time: the horizontal sum unrolled (the first window
+      // is where almost all pixels are decided).
+      V8f a0 = load8(vs + i), a1 = load8(vs + i + 1);
+      for (int j = 2; j + 1 < kW; j += 2) {
+        a0 += load8(vs + i + j);
+        a1 += load8(vs + i + j + 1);
+      }
+      if (kW % 2) a0 += load8(vs + i + kW - 1);
+      hs = a0 + a1;
+    } else {
+      hs = vs ? boxSum8(vs + i, w) : load8(h + i);
+    }
     const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
     const V8f lo = load8(elo + i), hi = load8(ehi + i);
     const V8i inr = (lo <= vd) & (vd <= hi);
@@ -493,7 +506,8 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
   }
 }
 
-ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true>(g); }
+ES_KERNEL void sliceOwnAndRl(const SliceArgs& g) { sliceUpdate<true, true, 0>(g); }
+ES_KERNEL void sliceOwnAndRl7(const SliceArgs& g) { sliceUpdate<true, true, 7>(g); }
 
 /// The NCC from exact sums; both engines use this same expression, so they agree bit for bit.
 inline float nccValue(float h, float mean_l, float sum_r, float inv_l, float inv_r) {
@@ -961,17 +975,26 @@ void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& c
   const int nb = static_cast<int>(s.block_a.size());
   // Coverage per block as a difference array over the disparity indices (kept all zero between
   // calls: only the indices a block touched are cleared again below), and the span it touches.
+  // Only coverage > 0 matters, so a pixel with the same range as the pixel before it in its
+  // block adds nothing (the common case: neighbours' ranges are alike), and skipping it also
+  // spares the chain of increments of one counter, each waiting for the one before.
   s.blocks.clear();
+  int last_k0 = -1, last_k1 = -1;
   for (int x : cols) {
     const int b = x / kBlock;
+    const int k0 = s.elo_i[x] - c.dmin, k1 = s.ehi_i[x] - c.dmin;
     if (s.blocks.empty() || s.blocks.back() != b) {
       s.blocks.push_back(b);
       s.block_a[b] = x;
       s.block_k0[b] = nd;
       s.block_k1[b] = -1;
+    } else if (k0 == last_k0 && k1 == last_k1) {
+      s.block_b[b] = x;
+      continue;
     }
+    last_k0 = k0;
+    last_k1 = k1;
     int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
-    const int k0 = s.elo_i[x] - c.dmin, k1 = s.ehi_i[x] - c.dmin;
     ++cv[k0];
     --cv[k1 + 1];
     s.block_k0[b] = std::min(s.block_k0[b], k0);
@@ -1053,7 +1076,11 @@ void sliceRange(const LevelContext& c, Scratch& s, int k, int a, int b, const fl
     g.second = s.second.data() + ra;
     g.rb_v = s.rb_v.data() + ra - d;
     g.rb_d = s.rb_d.data() + ra - d;
-    sliceOwnAndRl(g);
+    if (direct && c.w == 7) {
+      sliceOwnAndRl7(g);
+    } else {
+      sliceOwnAndRl(g);
+    }
   }
 }
 
