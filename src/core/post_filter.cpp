@@ -49,7 +49,8 @@ void checkMaps(const cv::Mat& disparity, const cv::Mat& code, const char* fn) {
 /// is written as (n - s < tol) && (s - n < tol): the same truth value (negation is exact, NaN
 /// fails both), without an absolute value.
 ES_KERNEL void outlierRow(const float* const* nrows, int num_rows, int centre, int cols, int half,
-                          float tol, int need, uint8_t* rm) {
+                          float tol, int need, uint8_t* rm, float* __restrict cmin,
+                          float* __restrict cmax, float* __restrict ccnt) {
   using namespace simd;
   const float* s = nrows[centre];
   auto scalar = [&](int x) {
@@ -67,10 +68,60 @@ ES_KERNEL void outlierRow(const float* const* nrows, int num_rows, int centre, i
   // count must reach need + 1: no test for the centre offset in the loop.
   const V8i need_self = {need + 1, need + 1, need + 1, need + 1,
                          need + 1, need + 1, need + 1, need + 1};
+  // A sufficient test first: when the measured values of a pixel's window (itself included) span
+  // less than tol and there are more than need of them, every measured neighbour agrees (for a
+  // neighbour n, |n - s| <= max - min, and rounding is monotone, so the rounded differences stay
+  // below tol): the pixel is kept without counting. Per column the least and greatest measured
+  // value over the rows and their number, then per pixel over the window's columns.
+  const float inf = std::numeric_limits<float>::infinity();
+  const V8f vinf = splat8(inf), vninf = splat8(-inf), one = splat8(1.f), zero = splat8(0.f);
+  int c = 0;
+  for (; c + 8 <= cols; c += 8) {
+    V8f lo = vinf, hi = vninf, n = zero;
+    for (int r = 0; r < num_rows; ++r) {
+      const V8f v = load8(nrows[r] + c);
+      const V8i ok = v == v;
+      lo = ok ? (v < lo ? v : lo) : lo;
+      hi = ok ? (v > hi ? v : hi) : hi;
+      n += ok ? one : zero;
+    }
+    store8(cmin + c, lo);
+    store8(cmax + c, hi);
+    store8(ccnt + c, n);
+  }
+  for (; c < cols; ++c) {
+    float lo = inf, hi = -inf, n = 0.f;
+    for (int r = 0; r < num_rows; ++r) {
+      const float v = nrows[r][c];
+      if (v != v) continue;
+      lo = std::min(lo, v);
+      hi = std::max(hi, v);
+      n += 1.f;
+    }
+    cmin[c] = lo;
+    cmax[c] = hi;
+    ccnt[c] = n;
+  }
+  const V8f vneed = splat8(static_cast<float>(need) + 1.f);  // the pixel itself is in the count
+  auto quickKeep = [&](int x0, V8f sv) {
+    V8f lo = load8(cmin + x0 - half), hi = load8(cmax + x0 - half), n = load8(ccnt + x0 - half);
+    for (int dx = -half + 1; dx <= half; ++dx) {
+      const V8f l = load8(cmin + x0 + dx), h = load8(cmax + x0 + dx);
+      lo = l < lo ? l : lo;
+      hi = h > hi ? h : hi;
+      n += load8(ccnt + x0 + dx);
+    }
+    return ((hi - lo < tv) & (n >= vneed)) | (sv != sv);
+  };
   int x = 0;
   for (; x < std::min(half, cols); ++x) scalar(x);
   for (; x + 16 + half <= cols; x += 16) {
     const V8f s0 = load8(s + x), s1 = load8(s + x + 8);
+    const V8i q0 = quickKeep(x, s0), q1 = quickKeep(x + 8, s1);
+    if (!anyLane(~(q0 & q1))) {
+      std::memset(rm + x, 0, 16);
+      continue;
+    }
     V8i a0 = {0, 0, 0, 0, 0, 0, 0, 0}, a1 = a0;
     for (int r = 0; r < num_rows; ++r) {
       const float* n = nrows[r] + x;
@@ -113,12 +164,13 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   const cv::Mat& src = disparity;
   cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
     std::vector<const float*> nrows(2 * half + 1);
+    std::vector<float> cmin(cols + 8), cmax(cols + 8), ccnt(cols + 8);
     for (int y = rg.start * kBlockRows; y < std::min(rows, rg.end * kBlockRows); ++y) {
       // NaN (unmatched) never compares below the tolerance, so it never agrees.
       const int y0 = std::max(0, y - half), y1 = std::min(rows - 1, y + half);
       for (int yy = y0; yy <= y1; ++yy) nrows[yy - y0] = src.ptr<float>(yy);
       outlierRow(nrows.data(), y1 - y0 + 1, y - y0, cols, half, tol, need_int,
-                 remove.ptr<uint8_t>(y));
+                 remove.ptr<uint8_t>(y), cmin.data(), cmax.data(), ccnt.data());
     }
   });
   int64_t removed = 0;

@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <limits>
+#include <opencv2/core.hpp>
 
 #include "endo_stereo/core/matcher.hpp"
 
@@ -92,6 +93,75 @@ TEST(IsolatedOutliers, DecidesFromTheInputMapNotFromEarlierRemovals) {
   // corner pixels have 3*3 - 1 = 8 < 10 and go.
   EXPECT_EQ(d.at<float>(6, 5), 3.f);
   EXPECT_TRUE(std::isnan(d.at<float>(5, 3)));
+}
+
+// METHOD.md's rule written out plainly: a measured pixel goes when fewer than
+// outlier_min_share * window^2 of its in-image neighbours (itself excluded) lie within the
+// tolerance of it.
+cv::Mat referenceRemoval(const cv::Mat& d, const PostFilterParams& p) {
+  const int half = p.outlier_window_px / 2;
+  const double need = p.outlier_min_share * p.outlier_window_px * p.outlier_window_px;
+  cv::Mat out = d.clone();
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) {
+      const float s = d.at<float>(y, x);
+      if (std::isnan(s)) continue;
+      int agree = 0;
+      for (int yy = std::max(0, y - half); yy <= std::min(d.rows - 1, y + half); ++yy) {
+        for (int xx = std::max(0, x - half); xx <= std::min(d.cols - 1, x + half); ++xx) {
+          if (yy == y && xx == x) continue;
+          const float n = d.at<float>(yy, xx);
+          if (std::fabs(n - s) < static_cast<float>(p.outlier_disparity_tol_px)) ++agree;
+        }
+      }
+      if (agree < need) out.at<float>(y, x) = kNaN;
+    }
+  }
+  return out;
+}
+
+TEST(IsolatedOutliers, MatchesThePlainRuleOnRandomMaps) {
+  // Smooth patches, jumps, isolated values, holes and values a quarter pixel apart (so that
+  // neighbours exactly at the tolerance occur), several sizes (rows not a multiple of the
+  // vector width), windows, tolerances and shares: the vectorised filter and its shortcut for
+  // uniform windows must decide every pixel as the plain rule does.
+  cv::RNG rng(7);
+  int cases = 0;
+  for (int window : {3, 5, 7}) {
+    for (double tol : {0.5, 1.0, 4.0}) {
+      for (double share : {0.2, 0.4, 0.9}) {
+        const int rows = 20 + rng.uniform(0, 9), cols = 37 + rng.uniform(0, 40);
+        cv::Mat d(rows, cols, CV_32FC1);
+        for (int y = 0; y < rows; ++y) {
+          for (int x = 0; x < cols; ++x) {
+            const float base = (x < cols / 2 ? 20.f : 32.f) + 0.25f * static_cast<float>(y / 4);
+            const int kind = rng.uniform(0, 100);
+            float v = base + 0.25f * static_cast<float>(rng.uniform(0, 5));
+            if (kind < 12) v = kNaN;
+            if (kind >= 12 && kind < 17) v = 0.25f * static_cast<float>(rng.uniform(0, 240));
+            d.at<float>(y, x) = v;
+          }
+        }
+        PostFilterParams p = paperFilter();
+        p.outlier_window_px = window;
+        p.outlier_disparity_tol_px = tol;
+        p.outlier_min_share = share;
+        const cv::Mat expected = referenceRemoval(d, p);
+        cv::Mat got = d.clone(), code;
+        removeIsolatedOutliers(got, code, p);
+        int diff = 0;
+        for (int y = 0; y < rows; ++y) {
+          for (int x = 0; x < cols; ++x) {
+            const float a = got.at<float>(y, x), b = expected.at<float>(y, x);
+            diff += !(a == b || (std::isnan(a) && std::isnan(b)));
+          }
+        }
+        EXPECT_EQ(diff, 0) << "window " << window << " tol " << tol << " share " << share;
+        ++cases;
+      }
+    }
+  }
+  EXPECT_EQ(cases, 27);
 }
 
 TEST(SmallHoles, FillsOneAndTwoPixelHolesWithTheNeighbourMedian) {
