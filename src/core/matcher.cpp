@@ -119,7 +119,8 @@ struct Scratch {
   // Sparse engine: vertical window sums of one column for all disparities, [column][dpad].
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
-  std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi, rl_ds;
+  std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi, rl_ok;
+  int rl_first = 0;  // sparseRightToLeft: index in rl_ok of the first valid disparity
   std::vector<int> vh_lo, vh_hi, vh_glo, vh_ghi;  // runRequests' sliding minimum / maximum
   // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
   // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
@@ -1831,6 +1832,11 @@ ES_KERNEL int firstMax(float* __restrict v, int n) {
   return i;
 }
 
+/// v[i] := -inf where ok[i] is 0 (only the disparities a left pixel searches compete).
+ES_KERNEL void maskOut(int n, float* __restrict v, const int* __restrict ok) {
+  for (int i = 0; i < n; ++i) v[i] = ok[i] ? v[i] : kNegInf;
+}
+
 /// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
 /// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
 void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
@@ -1842,19 +1848,23 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
     // The disparities d whose left pixel q + d holds d in its effective range, listed once.
     // q is inside the border and q + d is too (dv0, dv1), so pixel q + d's effective range holds
     // d exactly when its requested range does.
-    s.rl_ds.resize(static_cast<size_t>(std::max(0, dv1 - dv0 + 1)));
-    int n = 0;
-    for (int d = dv0; d <= dv1; ++d) {
-      s.rl_ds[n] = d;
-      n += (s.rlo_row[q + d] <= d) & (d <= s.rhi_row[q + d]);
-    }
-    s.rl_ds.resize(n);
-    if (s.rl_ds.empty()) {
+    // A mask over [dv0, dv1] (index d - dv0), then the span from the first to the last one.
+    const int n = std::max(0, dv1 - dv0 + 1);
+    s.rl_ok.resize(static_cast<size_t>(n) + 8);
+    int* ok = s.rl_ok.data();
+    const int* rl = s.rlo_row + q + dv0;
+    const int* rh = s.rhi_row + q + dv0;
+    for (int i = 0; i < n; ++i) ok[i] = ((rl[i] <= dv0 + i) & (dv0 + i <= rh[i])) ? -1 : 0;
+    int first = 0, last = n - 1;
+    while (first < n && !ok[first]) ++first;
+    while (last >= first && !ok[last]) --last;
+    if (first > last) {
       dv0 = 1;
       dv1 = 0;
     } else {
-      dv0 = s.rl_ds.front();
-      dv1 = s.rl_ds.back();
+      s.rl_first = first;
+      dv1 = dv0 + last;
+      dv0 = dv0 + first;
     }
   }
   if (dv0 > dv1) {
@@ -1899,14 +1909,13 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
     // that span in one pass; only the listed disparities compete.
     ensureMapsL(c, s, y, q + dv0, q + dv1);
     float* v = s.prof0;
-    nccSpan(dv1 - dv0 + 1, h + (dv0 - c.dmin), s.maps.mean_l.data() + q + dv0,
-            s.maps.inv_l.data() + q + dv0, s.maps.sum_r[q], s.maps.inv_r[q], v);
-    for (const int d : s.rl_ds) {
-      if (v[d - dv0] > rv) {
-        rv = v[d - dv0];
-        rd = static_cast<float>(d);
-      }
-    }
+    const int n = dv1 - dv0 + 1;
+    nccSpan(n, h + (dv0 - c.dmin), s.maps.mean_l.data() + q + dv0, s.maps.inv_l.data() + q + dv0,
+            s.maps.sum_r[q], s.maps.inv_r[q], v);
+    maskOut(n, v, s.rl_ok.data() + s.rl_first);
+    const int i = firstMax(v, n);  // the first valid disparity is valid: a finite value
+    rv = v[i];
+    rd = static_cast<float>(dv0 + i);
   } else if (d0 <= d1) {
     float* v = s.prof0;
     const int n = d1 - d0 + 1;
