@@ -1935,6 +1935,97 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
 // One row at one window size.
 // ---------------------------------------------------------------------------------------------
 
+/// Inputs of the decisions of a dense row (see processRow).
+struct DecideArgs {
+  int x0, x1;  // columns [x0, x1)
+  const float* act;
+  const float *best, *second, *best_d, *best_l, *best_r;
+  const float *gamma_r, *rb_d;  // indexed by the right pixel q = x - best_d
+  const int *rlo, *rhi;
+  int dmin, dmax, level;
+  float gmin, delta_min, min_ncc_full, min_ncc_narrow, eps;
+  bool subpixel;
+  uint8_t *code, *stw, *widx;
+  float *disp, *conf;
+};
+
+/// The decisions of a dense row, eight columns at a time: the expressions of processRow's
+/// per-pixel loop lane by lane (the same IEEE operations, so the same values), the two
+/// right-pixel values gathered, and every output written through a select that keeps the old
+/// value outside the active pixels. Columns from x0 + 8 * floor((x1 - x0) / 8) on are left to
+/// the caller.
+ES_KERNEL int decideDense(const DecideArgs& a) {
+  typedef uint8_t V8u8 __attribute__((vector_size(8)));
+  const V8f vzero = splat8(0.f), vone = splat8(1.f), vninf = splat8(kNegInf);
+  const V8f vgmin = splat8(a.gmin), vdelta = splat8(a.delta_min), veps = splat8(a.eps);
+  const V8f vfull = splat8(a.min_ncc_full), vnarrow = splat8(a.min_ncc_narrow);
+  const V8i vdmin = V8i{} + a.dmin, vdmax = V8i{} + a.dmax;
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8i c_nopeak = V8i{} + static_cast<int>(kCodeNoPeak);
+  const V8i c_struct = V8i{} + static_cast<int>(kCodeRejectStructure);
+  const V8i c_gap = V8i{} + static_cast<int>(kCodeRejectPeakGap);
+  const V8i c_lr = V8i{} + static_cast<int>(kCodeRejectLeftRight);
+  const V8i c_acc = V8i{} + (static_cast<int>(kCodeAcceptedBase) + a.level);
+  const V8i v_level = V8i{} + a.level, v_one_i = V8i{} + 1;
+  int x = a.x0;
+  for (; x + 8 <= a.x1; x += 8) {
+    const V8i active = load8(a.act + x) > vzero;
+    if (!anyLane(active)) continue;
+    const V8f b = load8(a.best + x);
+    const V8f bdf = load8(a.best_d + x);
+    const V8i bd = __builtin_convertvector(bdf, V8i);
+    const V8i q = (lane + x) - bd;
+    V8f gr, rbd;
+    for (int i = 0; i < 8; ++i) {
+      gr[i] = a.gamma_r[q[i]];
+      rbd[i] = a.rb_d[q[i]];
+    }
+    const V8f sec = load8(a.second + x);
+    const V8f comp = sec == vninf ? splat8(-1.f) : sec;
+    const V8f delta = b - comp;
+    V8i rl, rh;
+    std::memcpy(&rl, a.rlo + x, sizeof(rl));
+    std::memcpy(&rh, a.rhi + x, sizeof(rh));
+    const V8f min_ncc = ((rl > vdmin) | (rh < vdmax)) ? vnarrow : vfull;
+    const V8i no_peak = b == vninf;
+    const V8i flat = ~(gr > vgmin);
+    const V8i gap = ~(delta > vdelta) | (b < min_ncc);
+    const V8f diff = __builtin_convertvector(bd, V8f) - rbd;
+    const V8f adiff = diff < vzero ? -diff : diff;
+    const V8i lr = ~(adiff < veps);
+    const V8i cd = no_peak ? c_nopeak : (flat ? c_struct : (gap ? c_gap : (lr ? c_lr : c_acc)));
+    V8u8 cb;
+    std::memcpy(&cb, a.code + x, 8);
+    const V8i old_code = __builtin_convertvector(cb, V8i);
+    const V8u8 new_code = __builtin_convertvector(active ? cd : old_code, V8u8);
+    std::memcpy(a.code + x, &new_code, 8);
+    const V8i acc = active & (cd == c_acc);
+    if (!anyLane(acc)) continue;
+    V8f sub = vzero;
+    if (a.subpixel) {
+      const V8f bl = load8(a.best_l + x), br = load8(a.best_r + x);
+      const V8f den = bl - 2.f * b + br;
+      V8f t = (0.5f * (bl - br)) / den;
+      t = t < splat8(-0.5f) ? splat8(-0.5f) : t;
+      t = splat8(0.5f) < t ? splat8(0.5f) : t;
+      sub = den < vzero ? t : vzero;
+    }
+    const V8f dv = __builtin_convertvector(bd, V8f) + sub;
+    V8f cf = delta < vzero ? vzero : delta;
+    cf = vone < cf ? vone : cf;
+    store8(a.disp + x, acc ? dv : load8(a.disp + x));
+    store8(a.conf + x, acc ? cf : load8(a.conf + x));
+    V8u8 sb, wb;
+    std::memcpy(&sb, a.stw + x, 8);
+    std::memcpy(&wb, a.widx + x, 8);
+    const V8u8 ns = __builtin_convertvector(acc ? v_one_i : __builtin_convertvector(sb, V8i), V8u8);
+    const V8u8 nw = __builtin_convertvector(acc ? v_level : __builtin_convertvector(wb, V8i), V8u8);
+    std::memcpy(a.stw + x, &ns, 8);
+    std::memcpy(a.widx + x, &nw, 8);
+  }
+  return x;
+}
+
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
 void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
@@ -2141,7 +2232,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // value behind a failed criterion) cannot change the code, which takes the first failure.
   const uint8_t accepted = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
   const bool subpixel = c.mp->subpixel;
-  for (const int x : s.active) {
+  auto decide = [&](int x) {
     const float b = s.best[x];
     const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
@@ -2156,7 +2247,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
                        : lr    ? uint8_t{kCodeRejectLeftRight}
                                : accepted;
     code[x] = cd;
-    if (cd != accepted) continue;
+    if (cd != accepted) return;
     float sub = 0.f;
     if (subpixel) {
       const float den = s.best_l[x] - 2.f * b + s.best_r[x];
@@ -2166,6 +2257,42 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     conf[x] = std::clamp(delta, 0.f, 1.f);
     stw[x] = 1;
     widx[x] = static_cast<uint8_t>(c.level);
+  };
+  if (dense) {
+    // The active pixels span the row: eight columns at a time, the rest one by one.
+    DecideArgs g;
+    g.x0 = r;
+    g.x1 = W - r;
+    g.act = s.act.data();
+    g.best = s.best.data();
+    g.second = s.second.data();
+    g.best_d = s.best_d.data();
+    g.best_l = s.best_l.data();
+    g.best_r = s.best_r.data();
+    g.gamma_r = s.maps.gamma_r.data();
+    g.rb_d = s.rb_d.data();
+    g.rlo = rlo;
+    g.rhi = rhi;
+    g.dmin = c.dmin;
+    g.dmax = c.dmax;
+    g.level = c.level;
+    g.gmin = gmin;
+    g.delta_min = delta_min;
+    g.min_ncc_full = min_ncc_full;
+    g.min_ncc_narrow = min_ncc_narrow;
+    g.eps = eps;
+    g.subpixel = subpixel;
+    g.code = code;
+    g.stw = stw;
+    g.widx = widx;
+    g.disp = disp;
+    g.conf = conf;
+    const int done = decideDense(g);
+    for (int x = done; x < W - r; ++x) {
+      if (s.act[x] > 0.f) decide(x);
+    }
+  } else {
+    for (const int x : s.active) decide(x);
   }
 }
 
