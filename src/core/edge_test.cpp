@@ -24,9 +24,13 @@ using namespace simd;
 // Whether any lane of a comparison mask is set (simd::anyLane, the mask by reference: no note
 // from GCC about the ABI of 32-byte vector arguments in the baseline clones).
 ES_INLINE bool anySet(const V8i& m) {
-  uint64_t w[4];
-  std::memcpy(w, &m, sizeof(w));
-  return ((w[0] | w[1]) | (w[2] | w[3])) != 0;
+  // The two halves folded first (one vector OR), then the two 64-bit words of the result.
+  typedef int V4i __attribute__((vector_size(16)));
+  const V4i h =
+      __builtin_shufflevector(m, m, 0, 1, 2, 3) | __builtin_shufflevector(m, m, 4, 5, 6, 7);
+  uint64_t w[2];
+  std::memcpy(w, &h, sizeof(w));
+  return (w[0] | w[1]) != 0;
 }
 }  // namespace
 
@@ -137,17 +141,21 @@ constexpr int kMaxHalf = 32 / 2 + 16;  // widest map-test neighbourhood: window 
 constexpr int kMaxVerifyRadius = 6;    // MatcherParams::validate()
 constexpr int kMaxSide = 2 * kMaxVerifyRadius + 1;  // window width
 
-// WindowCache tiles: a block of kTile x kTile window corners, each tile row also holding the
-// 2 r corners right of its block, so that the 2 r + 1 windows of one pixel in a row are
-// contiguous in one tile (read as 16 lanes from column 0..15: kTileStride >= 31).
-constexpr int kTile = 16;                          // window corner rows / block columns per tile
-constexpr int kTileCols = kTile + kMaxSide - 1;    // window corners per tile row, at most
-constexpr int kTileStride = 32;                    // row stride of a tile's window values
+// WindowCache tiles: a block of kTile rows x kTileW columns of window corners, each tile row
+// also holding the 2 r corners right of its block, so that the 2 r + 1 windows of one pixel in a
+// row are contiguous in one tile (read as 16 lanes from column 0 .. kTileW - 1: kTileStride >=
+// kTileW + 15). 32 block columns rather than 16 (measured: 4% fewer instructions for the whole
+// step on the surgical sequence, 24 gave 1%, 48 no more; 8 was 20% worse).
+constexpr int kTile = 16;                          // window corner rows per tile
+constexpr int kTileW = 32;                         // block columns per tile
+constexpr int kTileCols = kTileW + kMaxSide - 1;    // window corners per tile row, at most
+constexpr int kTileStride = 48;                    // row stride of a tile's window values
 constexpr int kTileSpan = kTile + kMaxSide - 1;    // pixel rows a tile reads
 constexpr int kTileLanes = (kTileCols + kMaxSide - 1 + 7) / 8 * 8;  // pixel columns, whole lanes
 constexpr int kRowLanes = 16;                      // lanes per window row of one pixel
-static_assert(kTileStride >= kTile - 1 + kRowLanes && kTileStride >= kTileCols, "tile layout");
+static_assert(kTileStride >= kTileW - 1 + kRowLanes && kTileStride >= kTileCols, "tile layout");
 static_assert(kRowLanes >= kMaxSide, "one pixel's window row in 16 lanes");
+static_assert((kTileCols + 7) / 8 * 8 <= kTileStride, "blockSums writes whole vectors");
 
 /// Whether a competitor's window (vl, vr, cov of windowParts) reaches a ZNCC >= @p own, without
 /// square root or division (vectorisable): with c = cov and D = vl * vr > 0, ZNCC = c / sqrt(D);
@@ -197,8 +205,13 @@ ES_KERNEL void windowParts(int32_t n, const int32_t* sl, const int32_t* sll, con
 ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int cols_out, int K,
                          int lanes, int32_t* s1, int32_t* s2, int32_t* s3) {
   const int nv = lanes / 8;
-  V8i a1[kTileLanes / 8], a2[kTileLanes / 8], a3[kTileLanes / 8];
+  // Column sums of one output row, in place; the horizontal sums read up to K - 1 + 7 lanes
+  // past the last vector used: two more vectors, zero.
+  V8i a1[kTileLanes / 8 + 2], a2[kTileLanes / 8 + 2], a3[kTileLanes / 8 + 2];
   const V8i zero = {0, 0, 0, 0, 0, 0, 0, 0};
+  const char* c1 = reinterpret_cast<const char*>(a1);
+  const char* c2 = reinterpret_cast<const char*>(a2);
+  const char* c3 = reinterpret_cast<const char*>(a3);
   auto row = [&](int j, int v, V8i* r1, V8i* r2, V8i* r3) {
     V8i r, l;
     std::memcpy(&r, rv + j * kTileLanes + 8 * v, sizeof(r));
@@ -207,7 +220,7 @@ ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int
     *r2 = r * r;
     *r3 = r * l;
   };
-  for (int v = 0; v < nv; ++v) a1[v] = a2[v] = a3[v] = zero;
+  for (int v = 0; v < nv + 2; ++v) a1[v] = a2[v] = a3[v] = zero;
   for (int j = 0; j < K; ++j) {
     for (int v = 0; v < nv; ++v) {
       V8i p1, p2, p3;
@@ -228,30 +241,41 @@ ES_KERNEL void blockSums(const int32_t* lv, const int32_t* rv, int rows_out, int
         a3[v] += i3 - o3;
       }
     }
-    int32_t c1[kTileLanes], c2[kTileLanes], c3[kTileLanes];
-    std::memcpy(c1, a1, sizeof(V8i) * nv);
-    std::memcpy(c2, a2, sizeof(V8i) * nv);
-    std::memcpy(c3, a3, sizeof(V8i) * nv);
-    int32_t t1 = 0, t2 = 0, t3 = 0;
-    for (int i = 0; i < K; ++i) {
-      t1 += c1[i];
-      t2 += c2[i];
-      t3 += c3[i];
-    }
+    // Horizontal sums eight windows at a time, K shifted loads each (exact integers: the same
+    // values as running sums); lanes past cols_out (up to the row stride) are never read.
     int32_t* o1 = s1 + oy * kTileStride;
     int32_t* o2 = s2 + oy * kTileStride;
     int32_t* o3 = s3 + oy * kTileStride;
-    o1[0] = t1;
-    o2[0] = t2;
-    o3[0] = t3;
-    for (int ox = 1; ox < cols_out; ++ox) {
-      t1 += c1[ox + K - 1] - c1[ox - 1];
-      t2 += c2[ox + K - 1] - c2[ox - 1];
-      t3 += c3[ox + K - 1] - c3[ox - 1];
-      o1[ox] = t1;
-      o2[ox] = t2;
-      o3[ox] = t3;
+    for (int ox = 0; ox < cols_out; ox += 8) {
+      V8i t1 = zero, t2 = zero, t3 = zero;
+      for (int i = 0; i < K; ++i) {
+        V8i u1, u2, u3;
+        const size_t at = sizeof(int32_t) * (ox + i);
+        std::memcpy(&u1, c1 + at, sizeof(u1));
+        std::memcpy(&u2, c2 + at, sizeof(u2));
+        std::memcpy(&u3, c3 + at, sizeof(u3));
+        t1 += u1;
+        t2 += u2;
+        t3 += u3;
+      }
+      std::memcpy(o1 + ox, &t1, sizeof(t1));
+      std::memcpy(o2 + ox, &t2, sizeof(t2));
+      std::memcpy(o3 + ox, &t3, sizeof(t3));
     }
+  }
+}
+
+/// rows x lanes pixels from @p src (rows @p step bytes apart) to @p dst as int32 (rows kTileLanes
+/// apart), lanes >= @p cols set to zero; lanes is a multiple of 8.
+ES_KERNEL void widenRows(const uint8_t* src, size_t step, int rows, int lanes, int cols,
+                         int32_t* dst) {
+  for (int j = 0; j < rows; ++j) {
+    // Through a local copy: GCC leaves the loop scalar when the bytes may alias the output.
+    uint8_t b[kTileLanes];
+    std::memcpy(b, src + j * step, lanes);
+    int32_t* d = dst + j * kTileLanes;
+    for (int i = 0; i < lanes; ++i) d[i] = b[i];
+    for (int i = cols; i < lanes; ++i) d[i] = 0;
   }
 }
 
@@ -264,7 +288,7 @@ struct TileSums {
 };
 
 /// Window values of the second chance shared between flagged pixels: windows of width
-/// K = 2 r + 1 are grouped by their top-left corner into kTile x kTile blocks, a tile holding a
+/// K = 2 r + 1 are grouped by their top-left corner into kTile x kTileW blocks, a tile holding a
 /// block and the 2 r corners right of it (a pixel's windows are in one tile column), and each
 /// (tile, disparity) is computed once, on first use, with separable integer sums (exact, so
 /// every value equals the one computed for a single pixel's windows). Flagged pixels come in
@@ -284,9 +308,10 @@ class WindowCache {
     right_ = &right;
     r_ = r;
     k_ = 2 * r + 1;
+    lv_x_ = lv_y_ = -1;
     min_d_ = min_disparity;
     nd_ = nd;
-    tiles_x_ = (left.cols + kTile - 1) / kTile;
+    tiles_x_ = (left.cols + kTileW - 1) / kTileW;
     const int most = capacity(nd);
     if (arena != nullptr) {
       tiles_ = arena;
@@ -341,28 +366,34 @@ class WindowCache {
   }
 
  private:
-  // Bounds the memory (8 KiB a tile: about 17 MiB per thread with 64 disparities); the flagged
+  // Bounds the memory (12 KiB a tile: about 26 MiB per thread with 64 disparities); the flagged
   // pixels come in tile-major order, so the tiles still needed are those of the last few block
   // rows.
   static constexpr int kSoftMaxTiles = 2048;
 
   /// The tile's first window corner, its window counts and its left pixels (zero-padded).
   void block(int tx, int ty, int* wx0, int* wy0, int* nx, int* ny) const {
-    *wx0 = tx * kTile;
+    *wx0 = tx * kTileW;
     *wy0 = ty * kTile;
-    *nx = std::min(kTile + k_ - 1, left_->cols - k_ + 1 - *wx0);
+    *nx = std::min(kTileW + k_ - 1, left_->cols - k_ + 1 - *wx0);
     *ny = std::min(kTile, left_->rows - k_ + 1 - *wy0);
   }
+  /// Loads the block's left pixels into lv_ unless they are there already (the right tiles of
+  /// one block at several disparities are usually built one after the other).
   void leftPixels(int wx0, int wy0, int nx, int ny, int lanes) {
+    if (wx0 == lv_x_ && wy0 == lv_y_ && lanes == lv_lanes_) return;
+    lv_x_ = wx0;
+    lv_y_ = wy0;
+    lv_lanes_ = lanes;
+    const int cols = nx + k_ - 1;
+    if (wx0 + lanes <= left_->cols) {
+      widenRows(left_->ptr<uint8_t>(wy0) + wx0, left_->step[0], ny + k_ - 1, lanes, cols,
+                &lv_[0][0]);
+      return;
+    }
     for (int j = 0; j < ny + k_ - 1; ++j) {
       const uint8_t* lp = left_->ptr<uint8_t>(wy0 + j) + wx0;
-      const int cols = nx + k_ - 1;
-      if (wx0 + lanes <= left_->cols) {
-        for (int i = 0; i < lanes; ++i) lv_[j][i] = lp[i];
-        for (int i = cols; i < lanes; ++i) lv_[j][i] = 0;
-      } else {
-        for (int i = 0; i < lanes; ++i) lv_[j][i] = i < cols ? lp[i] : 0;
-      }
+      for (int i = 0; i < lanes; ++i) lv_[j][i] = i < cols ? lp[i] : 0;
     }
   }
   void buildLeft(int tx, int ty, TileSums& t) {
@@ -380,13 +411,13 @@ class WindowCache {
     const int lanes = (cols + 7) / 8 * 8;
     leftPixels(wx0, wy0, nx, ny, lanes);
     const int x0 = wx0 - q;  // first right column of the block
-    for (int j = 0; j < ny + k_ - 1; ++j) {
-      const uint8_t* rp = right_->ptr<uint8_t>(wy0 + j);
-      if (x0 >= 0 && x0 + lanes <= W) {
-        for (int i = 0; i < lanes; ++i) rv_[j][i] = rp[x0 + i];
-        for (int i = cols; i < lanes; ++i) rv_[j][i] = 0;
-      } else {
-        // Columns outside the right image are clamped; the windows reading them are zeroed.
+    if (x0 >= 0 && x0 + lanes <= W) {
+      widenRows(right_->ptr<uint8_t>(wy0) + x0, right_->step[0], ny + k_ - 1, lanes, cols,
+                &rv_[0][0]);
+    } else {
+      // Columns outside the right image are clamped; the windows reading them are zeroed.
+      for (int j = 0; j < ny + k_ - 1; ++j) {
+        const uint8_t* rp = right_->ptr<uint8_t>(wy0 + j);
         for (int i = 0; i < lanes; ++i) {
           rv_[j][i] = i < cols ? rp[std::min(std::max(x0 + i, 0), W - 1)] : 0;
         }
@@ -425,6 +456,7 @@ class WindowCache {
   std::vector<int32_t> values_;
   TileSums* tiles_ = nullptr;               // capacity(nd_) tiles
   std::unique_ptr<TileSums[]> own_tiles_;  // without an arena
+  int lv_x_ = -1, lv_y_ = -1, lv_lanes_ = 0;  // the block whose left pixels lv_ holds
   alignas(32) int32_t lv_[kTileSpan][kTileLanes];
   alignas(32) int32_t rv_[kTileSpan][kTileLanes];
 };
@@ -524,72 +556,59 @@ ES_KERNEL void slotRow(const float* v, int n, float v_lo, float v_hi, int slot_o
 /// Constants of one flagged pixel's competitor scan (see verifyFlagged).
 struct ScanArgs {
   float d, below, above;  ///< the pixel's disparity and the map test's thresholds
-  int no_slot;            ///< larger than any slot
 };
 
 /// The whole competitor scan of one pixel, eight neighbours per vector, rows of @p len
 /// neighbours read from @p base and their slots (slotRow) from @p slot_base (both @p stride
-/// elements apart; the map padded with NaN, which never triggers, so no clamping to the image
-/// and whole vectors past len read only padding or are masked out). slot of neighbour i = 0
-/// when it does not trigger the test, else its slotRow value; every row's slots are marked in
-/// @p mark (slot 0 included, cleared by the caller). The triggering neighbours' offsets
-/// (dx0 + i, dy0 + row) are summed into *sum_dx, *sum_dy and their slot range kept in
-/// *slot_min / *slot_max.
+/// elements apart; the map padded with NaN, which never triggers, so no clamping to the image;
+/// lanes past len are masked out). The slot of every triggering neighbour is marked in @p mark
+/// (and slot 0 for the other lanes of a vector holding one; cleared by the caller). The
+/// triggering neighbours' offsets (dx0 + i, dy0 + row) are summed into *sum_dx, *sum_dy.
+/// Column by column (eight columns, all rows): the column offsets are then summed once per
+/// column from per-lane counts, and a lane's mask past len is computed once.
 ES_KERNEL void scanBlock(const ScanArgs& a, const float* base, const int32_t* slot_base,
                          size_t stride, int rows, int len, int dx0, int dy0, uint8_t* mark,
-                         int* sum_dx, int* sum_dy, int* slot_min, int* slot_max) {
+                         int* sum_dx, int* sum_dy) {
   const V8f d = splat8(a.d), below = splat8(a.below), above = splat8(a.above);
-  const V8i no_slot = {a.no_slot, a.no_slot, a.no_slot, a.no_slot,
-                       a.no_slot, a.no_slot, a.no_slot, a.no_slot};
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
   const V8i lenv = {len, len, len, len, len, len, len, len};
   const V8i zero = {0, 0, 0, 0, 0, 0, 0, 0};
-  V8i vmin = no_slot, vmax = zero, vdx = zero, vdy = zero;
-  alignas(32) int32_t slots[2 * (kMaxHalf + 1) + 8];
-  for (int j = 0; j < rows; ++j) {
-    const float* row = base + j * stride;
-    const int32_t* srow = slot_base + j * stride;
-    const V8i dy = {dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j, dy0 + j};
-    V8i any = zero;
-    for (int i = 0; i < len; i += 8) {
-      const V8f v = load8(row + i);
+  const V8i one = {1, 1, 1, 1, 1, 1, 1, 1};
+  const V8i dy_first = {dy0, dy0, dy0, dy0, dy0, dy0, dy0, dy0};
+  V8i vdx = zero, vdy = zero;
+  for (int i = 0; i < len; i += 8) {
+    const V8i idx = lane + i;
+    const V8i in = idx < lenv;
+    V8i count = zero, dy = dy_first;
+    for (int j = 0; j < rows; ++j) {
+      const V8f v = load8(base + j * stride + i);
       V8i s;
-      std::memcpy(&s, srow + i, sizeof(s));
-      const V8i idx = lane + i;
+      std::memcpy(&s, slot_base + j * stride + i, sizeof(s));
       // NaN: both comparisons false.
-      const V8i t = ((d - v > below) | (v - d > above)) & (idx < lenv);
-      const V8i slot = t & s;  // t is -1 in triggering lanes
-      std::memcpy(slots + i, &slot, sizeof(slot));
-      any |= t;
-      vdx += t & (idx + dx0);
+      const V8i t = ((d - v > below) | (v - d > above)) & in;
+      count -= t;  // t is -1 in triggering lanes
       vdy += t & dy;
-      vmin = (t ? slot : no_slot) < vmin ? (t ? slot : no_slot) : vmin;
-      vmax = slot > vmax ? slot : vmax;
+      dy += one;
+      if (anySet(t)) {
+        alignas(32) int32_t slots[8];
+        const V8i slot = t & s;
+        std::memcpy(slots, &slot, sizeof(slot));
+        for (int k = 0; k < 8; ++k) mark[slots[k]] = 1;
+      }
     }
-    if (!anySet(any)) continue;
-    // Only the vectors holding a triggering neighbour (slot >= 1); lanes past len hold slot 0.
-    for (int i = 0; i < len; i += 8) {
-      V8i sl;
-      std::memcpy(&sl, slots + i, sizeof(sl));
-      if (!anySet(sl)) continue;
-      for (int k = 0; k < 8; ++k) mark[slots[i + k]] = 1;
-    }
+    vdx += count * (idx + dx0);
   }
-  int smin = *slot_min, smax = *slot_max;
   for (int i = 0; i < 8; ++i) {
-    smin = std::min(smin, vmin[i]);
-    smax = std::max(smax, vmax[i]);
     *sum_dx += vdx[i];
     *sum_dy += vdy[i];
   }
-  *slot_min = smin;
-  *slot_max = smax;
 }
 
 /// Reusable per-thread buffers of verifyFlagged.
 struct VerifyScratch {
   std::vector<uint8_t> seen;  // per disparity of the search range: already listed
   std::vector<int> alts;      // competing disparities of one pixel
+  std::vector<const TileSums*> alt_tiles;  // their two tiles each
   std::vector<uint8_t> mark;  // per rounded neighbour disparity: seen among the triggering ones
   WindowCache cache;          // window values shared between the pixels
 };
@@ -620,13 +639,13 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
   // (window rows oy < split_y) and ty1.
   const int K = 2 * r + 1;
   const int wx0 = f.x - 2 * r, wy0 = f.y - 2 * r;
-  const int tx = wx0 / kTile, ty0 = wy0 / kTile, ty1 = f.y / kTile;
+  const int tx = wx0 / kTileW, ty0 = wy0 / kTile, ty1 = f.y / kTile;
   const int split_y = std::min(K, (ty0 + 1) * kTile - wy0);
   // Offset of window row oy's first window in its tile.
   int offset[kMaxSide];
   for (int oy = 0; oy < K; ++oy) {
     const int wy = wy0 + oy;
-    offset[oy] = (wy - (oy < split_y ? ty0 : ty1) * kTile) * kTileStride + (wx0 - tx * kTile);
+    offset[oy] = (wy - (oy < split_y ? ty0 : ty1) * kTile) * kTileStride + (wx0 - tx * kTileW);
   }
   WindowCache& cache = sc.cache;
   cache.beginPixel();
@@ -658,30 +677,36 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
   // 2 .. nd + 3; values beyond are clamped into slots 1 and nd + 4, which give no competitor).
   sc.alts.clear();
   const int nd = mp.max_disparity - mp.min_disparity + 1;
-  if (static_cast<int>(sc.mark.size()) != nd + 5) {
-    sc.mark.assign(nd + 5, 0);
+  const int mark_words = (nd + 5 + 7) / 8;  // the table in whole 8-byte words
+  if (static_cast<int>(sc.seen.size()) != nd) {
+    sc.mark.assign(8 * mark_words, 0);
     sc.seen.assign(nd, 0);
   }
   const int slot_off = 3 - mp.min_disparity;
   int sum_dx = 0, sum_dy = 0;  // where the triggering neighbours lie, relative to the pixel
-  int slot_min = nd + 5, slot_max = 0;
   uint8_t* mark = sc.mark.data();
-  const ScanArgs sa{d, below, above, nd + 5};
+  const ScanArgs sa{d, below, above};
   scanBlock(sa, padded.ptr<float>(pad + f.y - f.half) + pad + f.x - f.half,
             padded_slot.ptr<int32_t>(pad + f.y - f.half) + pad + f.x - f.half, padded.step1(),
-            2 * f.half + 1, 2 * f.half + 1, -f.half, -f.half, mark, &sum_dx, &sum_dy, &slot_min,
-            &slot_max);
-  for (int slot = std::max(2, slot_min); slot <= std::min(nd + 3, slot_max); ++slot) {
-    if (!mark[slot]) continue;
-    const int c = slot - slot_off;
-    for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity); ++q) {
-      if (sc.seen[q - mp.min_disparity] || std::fabs(static_cast<float>(q) - d) < 2.f) continue;
-      sc.seen[q - mp.min_disparity] = 1;
-      sc.alts.push_back(q);
+            2 * f.half + 1, 2 * f.half + 1, -f.half, -f.half, mark, &sum_dx, &sum_dy);
+  // Marked slots 2 .. nd + 3 in increasing order, eight at a time (most words are clear).
+  mark[0] = mark[1] = 0;
+  for (int wi = 0; wi < mark_words; ++wi) {
+    uint64_t word;
+    std::memcpy(&word, mark + 8 * wi, sizeof(word));
+    if (word == 0) continue;
+    std::memset(mark + 8 * wi, 0, sizeof(word));
+    for (int slot = 8 * wi; slot < std::min(8 * wi + 8, nd + 4); ++slot) {
+      if (!(word >> (8 * (slot - 8 * wi)) & 0xff)) continue;
+      const int c = slot - slot_off;
+      for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity);
+           ++q) {
+        if (sc.seen[q - mp.min_disparity] || std::fabs(static_cast<float>(q) - d) < 2.f) continue;
+        sc.seen[q - mp.min_disparity] = 1;
+        sc.alts.push_back(q);
+      }
     }
   }
-  mark[0] = 0;
-  for (int slot = slot_min; slot <= slot_max; ++slot) mark[slot] = 0;
   for (int q : sc.alts) sc.seen[q - mp.min_disparity] = 0;
 
   // Each competitor first in the window shifted furthest towards the triggering neighbours
@@ -691,14 +716,19 @@ bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& 
   const int probe_y = sum_dy > 0 ? 2 * r : sum_dy < 0 ? 0 : r;
   const int probe_x = sum_dx > 0 ? 2 * r : sum_dx < 0 ? 0 : r;
   const float own_probe = own[probe_y * kRowLanes + probe_x];
-  for (int q : sc.alts) {
-    fetch(q);
+  // The tiles of each competitor, fetched once (valid for the whole pixel).
+  sc.alt_tiles.resize(2 * sc.alts.size());
+  for (size_t i = 0; i < sc.alts.size(); ++i) {
+    fetch(sc.alts[i]);
+    sc.alt_tiles[2 * i] = t[0];
+    sc.alt_tiles[2 * i + 1] = t[1];
     const TileSums* tp = tileOf(probe_y);
     const int ip = offset[probe_y] + probe_x;
     if (beatsParts(tp->a[ip], tp->b[ip], tp->c[ip], own_probe)) return false;
   }
-  for (int q : sc.alts) {
-    fetch(q);
+  for (size_t i = 0; i < sc.alts.size(); ++i) {
+    t[0] = sc.alt_tiles[2 * i];
+    t[1] = sc.alt_tiles[2 * i + 1];
     const float* q_base[2] = {t[0]->ncc, t[1]->ncc};
     if (!anyCandidate(pr, q_base, own_m)) continue;
     for (int oy = 0; oy < K; ++oy) {
@@ -806,6 +836,10 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   if (hi.size() != padded_size || hi.type() != CV_32S) hi.create(padded_size, CV_32S);
   cv::Mat lo_map = lo(cv::Rect(0, 0, W, H));
   cv::Mat hi_map(H, W, CV_32F, hi.data, hi.step);  // float view of hi's memory
+  // Whether lo_map / hi_map hold the first window's erosion / dilation (side levelSide(0)): a
+  // larger neighbourhood is then the union of a few of those squares (see below), read instead
+  // of scanned.
+  bool base_maps = false;
   for (int level = 0; level < num_levels; ++level) {
     const int w = mp.window_min_px + level * mp.window_step_px;
     const int half = w / 2 + margin;
@@ -843,6 +877,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
         }
       });
       CV_Assert(lo_map.data == lo.data && hi_map.data == hi.data);  // written in place
+      base_maps = level == 0;
       std::vector<uint8_t> hits(W + 8, 0);
       for (int y = 0; y < H; ++y) {
         const float* a = lo_map.ptr<float>(y);
@@ -859,6 +894,33 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
             if (hits[x]) judge(x, y, a[x], b[x]);
           }
         }
+      }
+    } else if (base_maps && half >= levelSide(0) / 2) {
+      // Few pixels, the first window's erosion and dilation at hand: the neighbourhood
+      // [x - half, x + half] (clipped to the map) is covered by n squares of side s0 per axis
+      // whose centres lie inside it, the last ones flush with its ends; a centre beyond the
+      // map is moved to its border, which keeps the square (clipped) inside the clipped
+      // neighbourhood (half >= h0) and still covers what it covered inside the map. Min and
+      // max are exact in any order and may see a value twice: the same values as a scan.
+      const int h0 = levelSide(0) / 2, s0 = 2 * h0 + 1;
+      const int n = (side + s0 - 1) / s0;
+      int cx[2 * kMaxHalf + 2], cy[2 * kMaxHalf + 2];
+      for (const cv::Point& p : by_level[level]) {
+        for (int i = 0; i < n; ++i) {
+          const int o = i + 1 < n ? h0 - half + s0 * i : half - h0;
+          cx[i] = std::min(std::max(p.x + o, 0), W - 1);
+          cy[i] = std::min(std::max(p.y + o, 0), H - 1);
+        }
+        float a = inf, b = -inf;
+        for (int j = 0; j < n; ++j) {
+          const float* l = lo_map.ptr<float>(cy[j]);
+          const float* h = hi_map.ptr<float>(cy[j]);
+          for (int i = 0; i < n; ++i) {
+            a = std::min(a, l[cx[i]]);
+            b = std::max(b, h[cx[i]]);
+          }
+        }
+        judge(p.x, p.y, a, b);
       }
     } else {
       // Few pixels: scan each one's window directly, over the threads in fixed chunks; then

@@ -18,7 +18,7 @@ namespace endo_stereo {
 /// @p window_idx holds each accepted pixel's window index; @p num_levels the number of window
 /// sizes; the remaining Mats are scratch, best kept by the caller from call to call: their
 /// memory is reused (@p lo, @p hi: the erosion / dilation of the map, then the padded map and
-/// its competitor slots; @p reject: the window cache of the second chance, about 17 MiB per
+/// its competitor slots; @p reject: the window cache of the second chance, about 26 MiB per
 /// thread with 64 disparities, touched as needed).
 void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& right,
                           int num_levels, const cv::Mat& window_idx, MatchResult& out,
