@@ -528,7 +528,9 @@ struct FrameData {
   // 2^32 (wrappedIntegrals): read only through window differences (boxAt, statsRowInt,
   // gammaRowInt), which are exact.
   cv::Mat sq_l, sq_r, int_lap_l, int_lap_r, sq_lap_l, sq_lap_r;
-  cv::Mat range_lo, range_hi;  // CV_32S requested range per pixel (clamped), lo > hi = none
+  // CV_32S requested range per pixel (clamped), lo > hi = none; with a full search one row that
+  // every row shares (no per-frame fill of two whole images).
+  cv::Mat range_lo, range_hi;
 };
 
 }  // namespace
@@ -2034,8 +2036,9 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   if (y < r || y >= c.height - r) return;
   ++s.stamp;
 
-  const int* rlo = c.im->range_lo.ptr<int>(y);
-  const int* rhi = c.im->range_hi.ptr<int>(y);
+  const int range_row = c.uniform_ranges ? 0 : y;
+  const int* rlo = c.im->range_lo.ptr<int>(range_row);
+  const int* rhi = c.im->range_hi.ptr<int>(range_row);
   s.rlo_row = rlo;
   s.rhi_row = rhi;
   const uint8_t* st = c.state->ptr<uint8_t>(y);
@@ -2442,10 +2445,10 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       },
       2);
 
-  im.range_lo.create(H, W, CV_32S);
-  im.range_hi.create(H, W, CV_32S);
   int64_t prior_pixels = 0;
   if (range && !range->empty()) {
+    im.range_lo.create(H, W, CV_32S);
+    im.range_hi.create(H, W, CV_32S);
     std::vector<int64_t> block_prior(num_blocks, 0);
     forRowBlocks([&](int b, int y0, int y1) {
       // Locals (not the captured references) so that the stores cannot alias them: vectorises.
@@ -2469,6 +2472,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
     });
     for (const int64_t n : block_prior) prior_pixels += n;
   } else {
+    im.range_lo.create(1, W, CV_32S);
+    im.range_hi.create(1, W, CV_32S);
     im.range_lo.setTo(mp.min_disparity);
     im.range_hi.setTo(mp.max_disparity);
   }

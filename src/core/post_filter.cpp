@@ -200,106 +200,129 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   // bounded and are left alone, as is anything wider: later frames fill those. Both runs are found
   // in one row-major sweep: horizontal runs within the row, vertical runs through a per-column
   // state (where the column's current invalid run started), so memory is walked contiguously.
+  // Row blocks in parallel. A block sweeps from max_hole + 1 rows above its first row to
+  // max_hole + 1 rows below its last (halo) and marks holes only in its own rows: a vertical run
+  // that can be a hole (at most max_hole long) is then seen whole, and a run that began above the
+  // sweep is at least max_hole + 1 long when it reaches the block, so it is never taken for one.
   cv::Mat hole(rows, cols, CV_8UC1, cv::Scalar(0));
-  std::vector<int32_t> run_len(cols, 0);    // length of the column's current invalid run so far
-  std::vector<int32_t> close_len(cols, 0);  // > 0: a bounded vertical run ends above this row
-  std::vector<uint8_t> inv(cols + 8, 0);    // 1 = invalid (NaN); padded for 8-byte reads
+  struct Fill {
+    int y, x;
+    float v;
+  };
+  constexpr int kBlockRows = 32;
+  const int num_blocks = (rows + kBlockRows - 1) / kBlockRows;
+  std::vector<std::vector<Fill>> block_fills(num_blocks);
   auto anyByte = [](const uint8_t* p) {
     uint64_t w;
     std::memcpy(&w, p, 8);
     return w != 0;
   };
-  for (int y = 0; y < rows; ++y) {
-    const float* d = disparity.ptr<float>(y);
-    uint8_t* h = hole.ptr<uint8_t>(y);
-    uint8_t* iv = inv.data();
-    int32_t* rl = run_len.data();
-    int32_t* cl = close_len.data();
-    // Branch-free, vectorisable: validity, and the per-column run bookkeeping. A run closes at
-    // this row when the pixel is valid after 1..max_hole invalid ones that did not start at row 0.
-    int32_t any_close = 0;
-    for (int c = 0; c < cols; ++c) {
-      const int32_t invalid = d[c] != d[c];
-      const int32_t len = rl[c];
-      iv[c] = static_cast<uint8_t>(invalid);
-      const int32_t closing = (!invalid && len > 0 && len <= max_hole && len < y) ? len : 0;
-      cl[c] = closing;
-      any_close |= closing;
-      rl[c] = invalid ? len + 1 : 0;
-    }
-    // Horizontal runs within the row, skipping valid stretches eight pixels at a time.
-    int x = 0;
-    while (x < cols) {
-      if (x + 8 <= cols && !anyByte(iv + x)) {
-        x += 8;
-        continue;
-      }
-      if (!iv[x]) {
-        ++x;
-        continue;
-      }
-      int end = x;
-      while (end < cols && iv[end]) ++end;
-      if (x > 0 && end < cols && end - x <= max_hole) {
-        for (int i = x; i < end; ++i) h[i] = 1;
-      }
-      x = end;
-    }
-    // Vertical runs that closed at this row (rare).
-    for (int c = 0; c < cols && any_close; ++c) {
-      for (int i = y - cl[c]; i < y; ++i) hole.ptr<uint8_t>(i)[c] = 1;
-    }
-  }
-  // The fill value: the median of the valid disparities among the 8 neighbours. With an even count
-  // the lower of the two middle values is taken, so the fill is always a disparity that was
-  // measured (at a depth edge the hole takes one side's value, never an invented one in between).
-  // Values are taken from the input map (holes are invalid there) and written after all are
-  // found, so no copy of the map is needed and the order of the pixels does not matter.
-  struct Fill {
-    int y, x;
-    float v;
-  };
-  std::vector<Fill> fills;
-  fills.reserve(1024);
-  for (int y = 0; y < rows; ++y) {
-    const uint8_t* h = hole.ptr<uint8_t>(y);
-    for (int x = 0; x < cols; ++x) {
-      if (x + 8 <= cols && !anyByte(h + x)) {
-        x += 7;
-        continue;
-      }
-      if (!h[x]) continue;
-      // The valid neighbours, padded with +inf to eight values and sorted by a fixed 19-comparator
-      // network (branch-free); the padding sorts last, so index (n - 1) / 2 is the lower median of
-      // the n valid values.
-      const float inf = std::numeric_limits<float>::infinity();
-      float v[8] = {inf, inf, inf, inf, inf, inf, inf, inf};
-      int n = 0;
-      for (int yy = std::max(0, y - 1); yy <= std::min(rows - 1, y + 1); ++yy) {
-        const float* d = disparity.ptr<float>(yy);
-        for (int xx = std::max(0, x - 1); xx <= std::min(cols - 1, x + 1); ++xx) {
-          if (yy == y && xx == x) continue;  // the hole itself is invalid
-          const float e = d[xx];
-          if (e == e) v[n++] = e;
+  cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+    std::vector<int32_t> run_len(cols), close_len(cols);
+    std::vector<uint8_t> inv(cols + 8, 0);  // 1 = invalid (NaN); padded for 8-byte reads
+    for (int blk = rg.start; blk < rg.end; ++blk) {
+      const int y0 = blk * kBlockRows, y1 = std::min(rows, y0 + kBlockRows);
+      const int ys = std::max(0, y0 - max_hole - 1), ye = std::min(rows, y1 + max_hole + 1);
+      std::fill(run_len.begin(), run_len.end(), 0);
+      for (int y = ys; y < ye; ++y) {
+        const float* d = disparity.ptr<float>(y);
+        uint8_t* iv = inv.data();
+        int32_t* rl = run_len.data();
+        int32_t* cl = close_len.data();
+        // Branch-free, vectorisable: validity, and the per-column run bookkeeping. A run closes
+        // at this row when the pixel is valid after 1..max_hole invalid ones that did not start
+        // at row 0.
+        int32_t any_close = 0;
+        for (int c = 0; c < cols; ++c) {
+          const int32_t invalid = d[c] != d[c];
+          const int32_t len = rl[c];
+          iv[c] = static_cast<uint8_t>(invalid);
+          const int32_t closing = (!invalid && len > 0 && len <= max_hole && len < y) ? len : 0;
+          cl[c] = closing;
+          any_close |= closing;
+          rl[c] = invalid ? len + 1 : 0;
+        }
+        // Horizontal runs within the row (own rows only), skipping valid stretches eight
+        // pixels at a time.
+        if (y >= y0 && y < y1) {
+          uint8_t* h = hole.ptr<uint8_t>(y);
+          int x = 0;
+          while (x < cols) {
+            if (x + 8 <= cols && !anyByte(iv + x)) {
+              x += 8;
+              continue;
+            }
+            if (!iv[x]) {
+              ++x;
+              continue;
+            }
+            int end = x;
+            while (end < cols && iv[end]) ++end;
+            if (x > 0 && end < cols && end - x <= max_hole) {
+              for (int i = x; i < end; ++i) h[i] = 1;
+            }
+            x = end;
+          }
+        }
+        // Vertical runs that closed at this row (rare), marked in the block's own rows.
+        for (int c = 0; c < cols && any_close; ++c) {
+          for (int i = std::max(y - cl[c], y0); i < std::min(y, y1); ++i) hole.ptr<uint8_t>(i)[c] = 1;
         }
       }
-      if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
-      static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6},
-                                          {3, 7}, {0, 1}, {2, 3}, {4, 5}, {6, 7}, {2, 4}, {3, 5},
-                                          {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
-      for (const auto& c : kNet) {
-        const float a = v[c[0]], b = v[c[1]];
-        v[c[0]] = std::min(a, b);
-        v[c[1]] = std::max(a, b);
+      // The fill value: the median of the valid disparities among the 8 neighbours. With an
+      // even count the lower of the two middle values is taken, so the fill is always a
+      // disparity that was measured (at a depth edge the hole takes one side's value, never an
+      // invented one in between). Values are read from the input map (holes are invalid there)
+      // and written after every block is done, so the blocks and the order of the pixels do not
+      // matter.
+      std::vector<Fill>& fills = block_fills[blk];
+      fills.clear();
+      for (int y = y0; y < y1; ++y) {
+        const uint8_t* h = hole.ptr<uint8_t>(y);
+        for (int x = 0; x < cols; ++x) {
+          if (x + 8 <= cols && !anyByte(h + x)) {
+            x += 7;
+            continue;
+          }
+          if (!h[x]) continue;
+          // The valid neighbours, padded with +inf to eight values and sorted by a fixed
+          // 19-comparator network (branch-free); the padding sorts last, so index (n - 1) / 2 is
+          // the lower median of the n valid values.
+          const float inf = std::numeric_limits<float>::infinity();
+          float v[8] = {inf, inf, inf, inf, inf, inf, inf, inf};
+          int n = 0;
+          for (int yy = std::max(0, y - 1); yy <= std::min(rows - 1, y + 1); ++yy) {
+            const float* d = disparity.ptr<float>(yy);
+            for (int xx = std::max(0, x - 1); xx <= std::min(cols - 1, x + 1); ++xx) {
+              if (yy == y && xx == x) continue;  // the hole itself is invalid
+              const float e = d[xx];
+              if (e == e) v[n++] = e;
+            }
+          }
+          if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
+          static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4},
+                                              {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
+                                              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4},
+                                              {3, 6}, {1, 2}, {3, 4}, {5, 6}};
+          for (const auto& c : kNet) {
+            const float a = v[c[0]], b = v[c[1]];
+            v[c[0]] = std::min(a, b);
+            v[c[1]] = std::max(a, b);
+          }
+          fills.push_back(Fill{y, x, v[(n - 1) / 2]});
+        }
       }
-      fills.push_back(Fill{y, x, v[(n - 1) / 2]});
+    }
+  });
+  int64_t filled = 0;
+  for (const std::vector<Fill>& fills : block_fills) {
+    filled += static_cast<int64_t>(fills.size());
+    for (const Fill& f : fills) {
+      disparity.ptr<float>(f.y)[f.x] = f.v;
+      if (!code.empty()) code.ptr<uint8_t>(f.y)[f.x] = kCodeFilled;
     }
   }
-  for (const Fill& f : fills) {
-    disparity.ptr<float>(f.y)[f.x] = f.v;
-    if (!code.empty()) code.ptr<uint8_t>(f.y)[f.x] = kCodeFilled;
-  }
-  return static_cast<int64_t>(fills.size());
+  return filled;
 }
 
 }  // namespace endo_stereo

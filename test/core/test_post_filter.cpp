@@ -2,6 +2,9 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <opencv2/core/utility.hpp>
+#include <vector>
+#include <algorithm>
 #include <limits>
 #include <opencv2/core.hpp>
 
@@ -162,6 +165,85 @@ TEST(IsolatedOutliers, MatchesThePlainRuleOnRandomMaps) {
     }
   }
   EXPECT_EQ(cases, 27);
+}
+
+// METHOD.md's hole rule written out plainly: an invalid pixel inside a horizontal or vertical run
+// of at most max_hole invalid pixels with a valid pixel at both ends takes the lower median of
+// its valid 8-neighbours in the input map.
+cv::Mat referenceFill(const cv::Mat& d, int max_hole) {
+  auto invalid = [&](int y, int x) { return std::isnan(d.at<float>(y, x)); };
+  cv::Mat out = d.clone();
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) {
+      if (!invalid(y, x)) continue;
+      int a = x, b = x;
+      while (a > 0 && invalid(y, a - 1)) --a;
+      while (b < d.cols - 1 && invalid(y, b + 1)) ++b;
+      const bool h = a > 0 && b < d.cols - 1 && b - a + 1 <= max_hole;
+      int t = y, u = y;
+      while (t > 0 && invalid(t - 1, x)) --t;
+      while (u < d.rows - 1 && invalid(u + 1, x)) ++u;
+      const bool v = t > 0 && u < d.rows - 1 && u - t + 1 <= max_hole;
+      if (!h && !v) continue;
+      std::vector<float> n;
+      for (int yy = std::max(0, y - 1); yy <= std::min(d.rows - 1, y + 1); ++yy) {
+        for (int xx = std::max(0, x - 1); xx <= std::min(d.cols - 1, x + 1); ++xx) {
+          if (!invalid(yy, xx)) n.push_back(d.at<float>(yy, xx));
+        }
+      }
+      std::sort(n.begin(), n.end());
+      out.at<float>(y, x) = n[(n.size() - 1) / 2];
+    }
+  }
+  return out;
+}
+
+TEST(SmallHoles, MatchesThePlainRuleOnRandomMapsAcrossRowBlocks) {
+  // Maps taller than several of the filter's row blocks (it works on blocks of rows in
+  // parallel), with holes of 1-4 px in both directions, many of them straddling block edges,
+  // and larger invalid areas; both hole limits; 1 and 2 threads.
+  cv::RNG rng(11);
+  for (int max_hole : {1, 2}) {
+    for (int threads : {1, 2}) {
+      cv::setNumThreads(threads);
+      const int rows = 97 + rng.uniform(0, 40), cols = 50 + rng.uniform(0, 30);
+      cv::Mat d(rows, cols, CV_32FC1);
+      for (int y = 0; y < rows; ++y) {
+        for (int x = 0; x < cols; ++x) d.at<float>(y, x) = 10.f + 0.5f * rng.uniform(0, 20);
+      }
+      for (int k = 0; k < 200; ++k) {  // short runs, vertical ones placed around row 32 * m
+        const bool vertical = rng.uniform(0, 2) == 1;
+        const int len = rng.uniform(1, 5);
+        int y = rng.uniform(0, rows), x = rng.uniform(0, cols);
+        if (vertical && rng.uniform(0, 2) == 1) y = 32 * rng.uniform(1, rows / 32 + 1) - rng.uniform(0, 4);
+        for (int i = 0; i < len; ++i) {
+          const int yy = vertical ? y + i : y, xx = vertical ? x : x + i;
+          if (yy >= 0 && yy < rows && xx < cols) d.at<float>(yy, xx) = kNaN;
+        }
+      }
+      for (int k = 0; k < 4; ++k) {  // larger invalid areas
+        const int y = rng.uniform(0, rows - 8), x = rng.uniform(0, cols - 8);
+        d(cv::Rect(x, y, 6, 7)).setTo(kNaN);
+      }
+      PostFilterParams p = paperFilter();
+      p.fill_max_hole_px = max_hole;
+      const cv::Mat expected = referenceFill(d, max_hole);
+      cv::Mat got = d.clone(), code;
+      const int64_t n = fillSmallHoles(got, code, p);
+      int diff = 0, filled = 0;
+      for (int y = 0; y < rows; ++y) {
+        for (int x = 0; x < cols; ++x) {
+          const float a = got.at<float>(y, x), b = expected.at<float>(y, x);
+          diff += !(a == b || (std::isnan(a) && std::isnan(b)));
+          filled += std::isnan(d.at<float>(y, x)) && !std::isnan(b);
+        }
+      }
+      EXPECT_EQ(diff, 0) << "max_hole " << max_hole << " threads " << threads;
+      EXPECT_EQ(n, filled);
+      EXPECT_GT(filled, 50);  // the map does hold holes to fill
+    }
+  }
+  cv::setNumThreads(-1);
 }
 
 TEST(SmallHoles, FillsOneAndTwoPixelHolesWithTheNeighbourMedian) {
