@@ -217,7 +217,9 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
     std::memcpy(&w, p, 8);
     return w != 0;
   };
-  cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+  cv::parallel_for_(cv::Range(0, num_blocks), [&, rows, cols, max_hole](const cv::Range& rg) {
+    // (rows, cols, max_hole by value: through references the compiler must assume the stores
+    // below may change them, and the bookkeeping loop would not vectorise.)
     std::vector<int32_t> run_len(cols), close_len(cols);
     std::vector<uint8_t> inv(cols + 8, 0);  // 1 = invalid (NaN); padded for 8-byte reads
     for (int blk = rg.start; blk < rg.end; ++blk) {
@@ -225,19 +227,20 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
       const int ys = std::max(0, y0 - max_hole - 1), ye = std::min(rows, y1 + max_hole + 1);
       std::fill(run_len.begin(), run_len.end(), 0);
       for (int y = ys; y < ye; ++y) {
-        const float* d = disparity.ptr<float>(y);
-        uint8_t* iv = inv.data();
-        int32_t* rl = run_len.data();
-        int32_t* cl = close_len.data();
+        const float* __restrict d = disparity.ptr<float>(y);
+        uint8_t* __restrict iv = inv.data();
+        int32_t* __restrict rl = run_len.data();
+        int32_t* __restrict cl = close_len.data();
         // Branch-free, vectorisable: validity, and the per-column run bookkeeping. A run closes
         // at this row when the pixel is valid after 1..max_hole invalid ones that did not start
         // at row 0.
         int32_t any_close = 0;
-        for (int c = 0; c < cols; ++c) {
+        const int n = cols, mh = max_hole, yy = y;  // locals: the stores cannot alias them
+        for (int c = 0; c < n; ++c) {
           const int32_t invalid = d[c] != d[c];
           const int32_t len = rl[c];
           iv[c] = static_cast<uint8_t>(invalid);
-          const int32_t closing = (!invalid && len > 0 && len <= max_hole && len < y) ? len : 0;
+          const int32_t closing = (!invalid & (len > 0) & (len <= mh) & (len < yy)) ? len : 0;
           cl[c] = closing;
           any_close |= closing;
           rl[c] = invalid ? len + 1 : 0;
