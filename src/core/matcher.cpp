@@ -982,27 +982,36 @@ void buildIntervals(const LevelContext& c, Scratch& s, const std::vector<int>& c
   // block adds nothing (the common case: neighbours' ranges are alike), and skipping it also
   // spares the chain of increments of one counter, each waiting for the one before.
   s.blocks.clear();
-  int last_k0 = -1, last_k1 = -1;
-  for (int x : cols) {
-    const int b = x / kBlock;
-    const int k0 = s.elo_i[x] - c.dmin, k1 = s.ehi_i[x] - c.dmin;
-    if (s.blocks.empty() || s.blocks.back() != b) {
+  int last_k0 = -1, last_k1 = -1, cur_b = -1;
+  const int* __restrict elo = s.elo_i.data();
+  const int* __restrict ehi = s.ehi_i.data();
+  int* __restrict block_a = s.block_a.data();
+  int* __restrict block_b = s.block_b.data();
+  int* __restrict block_k0 = s.block_k0.data();
+  int* __restrict block_k1 = s.block_k1.data();
+  int* __restrict cover = s.cover.data();
+  const int dmin = c.dmin;
+  for (const int x : cols) {
+    const int b = x / kBlock;  // x >= 0
+    const int k0 = elo[x] - dmin, k1 = ehi[x] - dmin;
+    if (b != cur_b) {
+      cur_b = b;
       s.blocks.push_back(b);
-      s.block_a[b] = x;
-      s.block_k0[b] = nd;
-      s.block_k1[b] = -1;
+      block_a[b] = x;
+      block_k0[b] = nd;
+      block_k1[b] = -1;
     } else if (k0 == last_k0 && k1 == last_k1) {
-      s.block_b[b] = x;
+      block_b[b] = x;
       continue;
     }
     last_k0 = k0;
     last_k1 = k1;
-    int* cv = s.cover.data() + static_cast<size_t>(b) * (nd + 1);
+    int* cv = cover + static_cast<size_t>(b) * (nd + 1);
     ++cv[k0];
     --cv[k1 + 1];
-    s.block_k0[b] = std::min(s.block_k0[b], k0);
-    s.block_k1[b] = std::max(s.block_k1[b], k1);
-    s.block_b[b] = x;
+    block_k0[b] = std::min(block_k0[b], k0);
+    block_k1[b] = std::max(block_k1[b], k1);
+    block_b[b] = x;
   }
   // Blocks in column order, each over the disparities it covers: every disparity's intervals
   // come out sorted by column and merged exactly as a scan of all blocks per disparity would.
