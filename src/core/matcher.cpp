@@ -2434,10 +2434,13 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       [&](const cv::Range& views) {
         for (int v = views.start; v < views.end; ++v) {
           if (v == 0) {
-            left.convertTo(im.lf, CV_32F, 1.0, -128.0);
+            // The left view converted straight into its padded buffer (lf is a view of it):
+            // only the padding columns are cleared, and no second copy is written.
             im.lf_pad.create(H, im.l_pad + W + pad_w, CV_32F);
-            im.lf_pad.setTo(0.f);
-            im.lf.copyTo(im.lf_pad(cv::Rect(im.l_pad, 0, W, H)));
+            if (im.l_pad > 0) im.lf_pad.colRange(0, im.l_pad).setTo(0.f);
+            im.lf_pad.colRange(im.l_pad + W, im.lf_pad.cols).setTo(0.f);
+            im.lf = im.lf_pad(cv::Rect(im.l_pad, 0, W, H));
+            left.convertTo(im.lf, CV_32F, 1.0, -128.0);
             cv::integral(left, im.int_l, CV_32S);
             cv::Laplacian(left, im.lap_l, CV_16S, 1);
             wrappedIntegrals(left, im.lap_l, im.sq_l, im.int_lap_l, im.sq_lap_l);
