@@ -612,42 +612,50 @@ ES_KERNEL void addRows(int n, uint32_t* __restrict out, const uint32_t* __restri
   for (int i = 0; i < n; ++i) out[i] += above[i];
 }
 
-/// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v^2 for the 8-bit
-/// image @p img and of g and g^2 for its Laplacian @p lap (CV_16S), all modulo 2^32: half the
-/// memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt and
-/// the row kernels (see boxAt).
-void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sq, cv::Mat& int_lap,
-                      cv::Mat& sq_lap) {
+/// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v and v^2 for the
+/// 8-bit image @p img and of g and g^2 for its Laplacian @p lap (CV_16S), all modulo 2^32 (the
+/// sum of v is cv::integral's CV_32S result wherever that does not overflow), in one pass: half
+/// the memory of double integrals, and box sums in 8-lane integer vectors. Exact through boxAt
+/// and the row kernels (see boxAt).
+void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sum, cv::Mat& sq,
+                      cv::Mat& int_lap, cv::Mat& sq_lap) {
   const int H = img.rows, W = img.cols;
+  sum.create(H + 1, W + 1, CV_32S);
   sq.create(H + 1, W + 1, CV_32S);
   int_lap.create(H + 1, W + 1, CV_32S);
   sq_lap.create(H + 1, W + 1, CV_32S);
+  std::fill(sum.ptr<uint32_t>(0), sum.ptr<uint32_t>(0) + W + 1, 0u);
   std::fill(sq.ptr<uint32_t>(0), sq.ptr<uint32_t>(0) + W + 1, 0u);
   std::fill(int_lap.ptr<uint32_t>(0), int_lap.ptr<uint32_t>(0) + W + 1, 0u);
   std::fill(sq_lap.ptr<uint32_t>(0), sq_lap.ptr<uint32_t>(0) + W + 1, 0u);
   for (int y = 0; y < H; ++y) {
     const uint8_t* v = img.ptr<uint8_t>(y);
     const int16_t* g = lap.ptr<int16_t>(y);
+    const uint32_t* pv = sum.ptr<uint32_t>(y);
     const uint32_t* ps = sq.ptr<uint32_t>(y);
     const uint32_t* pg = int_lap.ptr<uint32_t>(y);
     const uint32_t* pq = sq_lap.ptr<uint32_t>(y);
+    uint32_t* ov = sum.ptr<uint32_t>(y + 1);
     uint32_t* os = sq.ptr<uint32_t>(y + 1);
     uint32_t* og = int_lap.ptr<uint32_t>(y + 1);
     uint32_t* oq = sq_lap.ptr<uint32_t>(y + 1);
     // Row prefix sums (a serial chain each) into the output row, then the row above added in a
     // separate, vectorised pass.
-    uint32_t rs = 0, rg = 0, rq = 0;
-    os[0] = og[0] = oq[0] = 0;
+    uint32_t rv = 0, rs = 0, rg = 0, rq = 0;
+    ov[0] = os[0] = og[0] = oq[0] = 0;
     for (int x = 0; x < W; ++x) {
       const uint32_t vv = v[x];
       const int32_t gg = g[x];
+      rv += vv;
       rs += vv * vv;
       rg += static_cast<uint32_t>(gg);
       rq += static_cast<uint32_t>(gg * gg);
+      ov[x + 1] = rv;
       os[x + 1] = rs;
       og[x + 1] = rg;
       oq[x + 1] = rq;
     }
+    addRows(W, ov + 1, pv + 1);
     addRows(W, os + 1, ps + 1);
     addRows(W, og + 1, pg + 1);
     addRows(W, oq + 1, pq + 1);
@@ -2441,17 +2449,16 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
             im.lf_pad.colRange(im.l_pad + W, im.lf_pad.cols).setTo(0.f);
             im.lf = im.lf_pad(cv::Rect(im.l_pad, 0, W, H));
             left.convertTo(im.lf, CV_32F, 1.0, -128.0);
-            cv::integral(left, im.int_l, CV_32S);
             cv::Laplacian(left, im.lap_l, CV_16S, 1);
-            wrappedIntegrals(left, im.lap_l, im.sq_l, im.int_lap_l, im.sq_lap_l);
+            wrappedIntegrals(left, im.lap_l, im.int_l, im.sq_l, im.int_lap_l, im.sq_lap_l);
           } else {
             right.convertTo(im.rf, CV_32F, 1.0, -128.0);
             im.rf_rev.create(H, im.rev_pad + W + pad_w, CV_32F);
-            im.rf_rev.setTo(0.f);
+            if (im.rev_pad > 0) im.rf_rev.colRange(0, im.rev_pad).setTo(0.f);
+            im.rf_rev.colRange(im.rev_pad + W, im.rf_rev.cols).setTo(0.f);
             cv::flip(im.rf, im.rf_rev(cv::Rect(im.rev_pad, 0, W, H)), 1);
-            cv::integral(right, im.int_r, CV_32S);
             cv::Laplacian(right, im.lap_r, CV_16S, 1);
-            wrappedIntegrals(right, im.lap_r, im.sq_r, im.int_lap_r, im.sq_lap_r);
+            wrappedIntegrals(right, im.lap_r, im.int_r, im.sq_r, im.int_lap_r, im.sq_lap_r);
           }
         }
       },
