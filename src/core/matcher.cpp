@@ -1371,6 +1371,43 @@ ES_INLINE void peakGroupReg(V8f prev, V8f v, V8f next, V8i kk, V8i vklo, V8i vkh
   bv = gt ? mv : bv;
 }
 
+/// The groups g0 .. g1 of one dense pixel (lanePass2): its profile S formed and offered to the
+/// right-to-left trackers (laneGroup), then, for an active pixel, the peak trackers folded over it
+/// with each group's neighbours in registers (peakGroupReg; whole vector loads, forwarded from
+/// the stores just made; the lanes whose neighbour lies outside g0 .. g1 are masked: range
+/// ends). kNG > 0: g1 - g0 + 1 == kNG, known at compile time.
+template <int kNG>
+ES_INLINE void pixelGroups(int g0, int g1, V8i kk0, V8f dv0, V8i vklo, V8i vkhi, V8f ml, V8f il,
+                           const float* __restrict h, const float* __restrict srr,
+                           const float* __restrict irr, float* __restrict prof,
+                           float* __restrict rbvm, float* __restrict rbdm, bool act, V8f& bv,
+                           V8f& sv, V8i& bk) {
+  const V8f eight_f = splat8(8.f);
+  const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
+  const int n = kNG > 0 ? kNG : g1 - g0 + 1;
+  laneGroup<true>(8 * g0, kk0, dv0, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
+  {
+    V8f dv = dv0 + eight_f;
+    V8i kk = kk0 + eight_i;
+    for (int j = 1; j < n - 1; ++j, dv += eight_f, kk += eight_i) {
+      laneGroup<false>(8 * (g0 + j), kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
+    }
+    if (n > 1) laneGroup<true>(8 * g1, kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
+  }
+  if (!act) return;
+  V8f prev = splat8(kNegInf), cur = load8(prof + 8 * g0);
+  V8f next = load8(prof + 8 * g0 + 8);
+  peakGroupReg<true>(prev, cur, next, kk0, vklo, vkhi, bv, sv, bk);
+  V8i kk = kk0 + eight_i;
+  for (int j = 1; j < n - 1; ++j, kk += eight_i) {
+    prev = cur;
+    cur = next;
+    next = load8(prof + 8 * (g0 + j) + 8);
+    peakGroupReg<false>(prev, cur, next, kk, vklo, vkhi, bv, sv, bk);
+  }
+  if (n > 1) peakGroupReg<true>(cur, next, load8(prof + 8 * g1 + 8), kk, vklo, vkhi, bv, sv, bk);
+}
+
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1, n >= 3), the same
 /// rules as the dense engines: per lane the best interior maximum (first of equal values), its
 /// index and the lane's best other maximum, then butterfly reductions. prof[-1] and whole groups
@@ -1516,8 +1553,6 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
   const int W = a.width, r = a.r, dp = a.dp, ng = dp / 8;
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
   const V8f lane_f = {0.f, 1.f, 2.f, 3.f, 4.f, 5.f, 6.f, 7.f};
-  const V8f eight_f = splat8(8.f);
-  const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
   const V8f vninf = splat8(kNegInf);
   float* __restrict h = a.h;
   float* __restrict prof = a.prof;
@@ -1563,36 +1598,20 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     const float* irr = a.irr + m;
     float* rbvm = rbv + m;
     float* rbdm = rbd + m;
-    // Only the first and the last group can hold lanes outside the range.
-    laneGroup<true>(8 * g0, kk0, dv0, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
-    {
-      V8f dv = dv0 + eight_f;
-      V8i kk = kk0 + eight_i;
-      for (int g = g0 + 1; g < g1; ++g, dv += eight_f, kk += eight_i) {
-        laneGroup<false>(8 * g, kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
-      }
-      if (g1 > g0) laneGroup<true>(8 * g1, kk, dv, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm);
-    }
-    if (!(a.act[x] > 0.f)) continue;
+    // Only the first and the last group can hold lanes outside the range. A pixel with the
+    // whole range (most of them in a full search) takes the same steps with the group count
+    // fixed at compile time: the loops unroll.
     V8f bv = vninf, sv = vninf;
     V8i bk = V8i{0, 0, 0, 0, 0, 0, 0, 0};
-    // Groups g - 1, g, g + 1 in registers (whole vector loads: forwarded from the stores above);
-    // the lanes whose neighbour lies outside g0 .. g1 are masked (range ends).
-    {
-      V8f prev = vninf, cur = load8(prof + 8 * g0);
-      V8f next = load8(prof + 8 * g0 + 8);
-      peakGroupReg<true>(prev, cur, next, kk0, vklo, vkhi, bv, sv, bk);
-      V8i kk = kk0 + eight_i;
-      for (int g = g0 + 1; g < g1; ++g, kk += eight_i) {
-        prev = cur;
-        cur = next;
-        next = load8(prof + 8 * g + 8);
-        peakGroupReg<false>(prev, cur, next, kk, vklo, vkhi, bv, sv, bk);
-      }
-      if (g1 > g0) {
-        peakGroupReg<true>(cur, next, load8(prof + 8 * g1 + 8), kk, vklo, vkhi, bv, sv, bk);
-      }
+    const bool act = a.act[x] > 0.f;
+    if (g1 - g0 == 7) {
+      pixelGroups<8>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm, act, bv,
+                     sv, bk);
+    } else {
+      pixelGroups<0>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, srr, irr, prof, rbvm, rbdm, act, bv,
+                     sv, bk);
     }
+    if (!act) continue;
     // The highest maximum at its smallest index (lanes hold distinct indices); every other
     // maximum competes for second.
     const V8f bmax = hmax8(bv);
