@@ -1337,14 +1337,13 @@ ES_INLINE void laneGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V8f 
   store8(rbd + k, up ? dv : load8(rbd + k));
 }
 
-/// Interior local maxima of one group, folded into the per-lane trackers: the lane's best (first
-/// of equal values: strict >), its index, and the best of the lane's other maxima. With kMasked
-/// only lanes strictly inside (klo, khi) count.
+/// Interior local maxima of one group v (its lanes' neighbours in left and right), folded into
+/// the per-lane trackers: the lane's best (first of equal values: strict >), its index, and the
+/// best of the lane's other maxima. With kMasked only lanes strictly inside (klo, khi) count.
 template <bool kMasked>
-ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restrict prof, V8f& bv,
-                         V8f& sv, V8i& bk) {
-  const V8f v = load8(prof + k);
-  V8i mx = (v > load8(prof + k - 1)) & (v >= load8(prof + k + 1));
+ES_INLINE void foldPeaks(V8f v, V8f left, V8f right, V8i kk, V8i vklo, V8i vkhi, V8f& bv, V8f& sv,
+                         V8i& bk) {
+  V8i mx = (v > left) & (v >= right);
   if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
   const V8f mv = mx ? v : splat8(kNegInf);
   const V8i gt = mv > bv;
@@ -1353,22 +1352,24 @@ ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restr
   bv = gt ? mv : bv;
 }
 
-/// peakGroup on a group held in a register, its neighbours taken from the groups before and
+/// foldPeaks on the group of prof at k, its neighbours loaded from prof.
+template <bool kMasked>
+ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restrict prof, V8f& bv,
+                         V8f& sv, V8i& bk) {
+  foldPeaks<kMasked>(load8(prof + k), load8(prof + k - 1), load8(prof + k + 1), kk, vklo, vkhi, bv,
+                     sv, bk);
+}
+
+/// foldPeaks on a group held in a register, its neighbours taken from the groups before and
 /// after by lane shifts. The dense engine stores a profile's groups just before it analyses
 /// them, and a load at prof + k - 1 straddles two of those stores, which the store buffer cannot
 /// forward (a stall per group); the values are the same.
 template <bool kMasked>
 ES_INLINE void peakGroupReg(V8f prev, V8f v, V8f next, V8i kk, V8i vklo, V8i vkhi, V8f& bv,
                             V8f& sv, V8i& bk) {
-  const V8f left = __builtin_shufflevector(prev, v, 7, 8, 9, 10, 11, 12, 13, 14);
-  const V8f right = __builtin_shufflevector(v, next, 1, 2, 3, 4, 5, 6, 7, 8);
-  V8i mx = (v > left) & (v >= right);
-  if (kMasked) mx &= (kk > vklo) & (kk < vkhi);
-  const V8f mv = mx ? v : splat8(kNegInf);
-  const V8i gt = mv > bv;
-  sv = gt ? bv : max8(sv, mv);
-  bk = gt ? kk : bk;
-  bv = gt ? mv : bv;
+  foldPeaks<kMasked>(v, __builtin_shufflevector(prev, v, 7, 8, 9, 10, 11, 12, 13, 14),
+                     __builtin_shufflevector(v, next, 1, 2, 3, 4, 5, 6, 7, 8), kk, vklo, vkhi, bv,
+                     sv, bk);
 }
 
 /// The groups g0 .. g1 of one dense pixel (lanePass2): its profile S formed and offered to the

@@ -13,6 +13,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <filesystem>
 #include <fstream>
 #include <iostream>
 #include <limits>
@@ -271,6 +272,16 @@ int main(int argc, char** argv) {
     return 2;
   }
   if (picture_frame < 0 || picture_frame >= frames) picture_frame = frames - 1;
+  if (!out_dir.empty()) {
+    // Made before the long run, so that a bad path fails now and not silently at the end.
+    std::error_code ec;
+    std::filesystem::create_directories(out_dir, ec);
+    if (ec || !std::filesystem::is_directory(out_dir)) {
+      std::cerr << "--out " << out_dir << ": cannot create the folder"
+                << (ec ? ": " + ec.message() : std::string()) << "\n";
+      return 2;
+    }
+  }
   const std::string scene_error = sp.validate();
   if (!scene_error.empty()) {
     std::cerr << scene_error << "\n";
@@ -481,17 +492,25 @@ int main(int argc, char** argv) {
                 (long long)breakdown_without[2], (long long)breakdown_without[3]);
   }
   if (!out_dir.empty()) {
-    std::ofstream(out_dir + "/results.json") << buf;
-    cv::imwrite(out_dir + "/coverage.png", labelled(tracker_with.coverage().colorImage(),
-                                                    "longest run without update (0 .. 20+ frames)"));
-    cv::imwrite(out_dir + "/coverage_without_priors.png",
-                labelled(tracker_without.coverage().colorImage(), "no priors: longest run without update"));
+    std::ofstream json(out_dir + "/results.json");
+    json << buf;
+    bool ok = static_cast<bool>(json);
+    ok &= cv::imwrite(out_dir + "/coverage.png", labelled(tracker_with.coverage().colorImage(),
+                                                          "longest run without update (0 .. 20+ frames)"));
+    ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
+                      labelled(tracker_without.coverage().colorImage(),
+                               "no priors: longest run without update"));
     cv::Mat row;
     cv::hconcat(std::vector<cv::Mat>{labelled(picture_left, "input (left)"),
                                      labelled(picture_disp, "this frame"),
                                      labelled(picture_fused, "fused (<= 10 frames old)")},
                 row);
-    cv::imwrite(out_dir + "/fused.png", row);
+    ok &= cv::imwrite(out_dir + "/fused.png", row);
+    if (!ok) {
+      std::cerr << "--out " << out_dir << ": could not write results.json and the pictures\n";
+      return 1;
+    }
+    std::cout << "written: " << out_dir << "/results.json, coverage.png, coverage_without_priors.png, fused.png\n";
   }
   return 0;
 }
