@@ -373,8 +373,10 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             for (; x <= size.width - 4; x += 4) {
               const cv::v_float32x4 lf = cv::v_load(lo_f + x), hf = cv::v_load(hi_f + x);
               const cv::v_float32x4 le = cv::v_load(lo_e + x), he = cv::v_load(hi_e + x);
-              const cv::v_int32x4 lit =
-                  cv::v_reinterpret_as_s32(cv::v_load_expand_q(bright + x)) != v_zero;
+              // (Four bytes widened lane by lane: OpenCV's v_load_expand_q reads them through a
+              // misaligned int pointer, which UBSan rightly reports.)
+              const cv::v_uint32x4 b4(bright[x], bright[x + 1], bright[x + 2], bright[x + 3]);
+              const cv::v_int32x4 lit = cv::v_reinterpret_as_s32(b4) != v_zero;
               const cv::v_int32x4 prior = cv::v_reinterpret_as_s32(lf < v_none) & ~lit;
               const cv::v_int32x4 edge = prior & cv::v_reinterpret_as_s32((he - le) > v_jump);
               const cv::v_float32x4 edge_f = cv::v_reinterpret_as_f32(edge);
