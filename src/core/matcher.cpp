@@ -120,7 +120,6 @@ struct Scratch {
   std::vector<float> colsum;
   std::vector<int> col_row, col_k0, col_k1, col_used, col_done, hot;
   std::vector<int> req_stamp, req_k0, req_k1, run_lo, run_hi, rl_ok;
-  int rl_first = 0;  // sparseRightToLeft: index in rl_ok of the first valid disparity
   std::vector<int> vh_lo, vh_hi, vh_glo, vh_ghi;  // runRequests' sliding minimum / maximum
   // Right-to-left profiles: vertical window sums indexed by the RIGHT column q, [q][dpad]:
   // colsum_r[q][k] = sum over the window's rows of L(y', q + d_k) R(y', q). The profile of right
@@ -129,9 +128,9 @@ struct Scratch {
   std::vector<float> colsum_r;
   std::vector<int> colr_row, colr_k0, colr_k1, colr_used, colr_done, hot_r;
   std::vector<float> hvec, prof;
-  // Right-to-left profiles of uniform rows: the window sums hr of right pixel rl_q on the
-  // disparity indices [rl_k0, rl_k1], slid to the next right pixel when it is rl_q + 1 in the
-  // same row (rl_stamp).
+  // Right-to-left profiles: the window sums hr of right pixel rl_q on the disparity indices
+  // [rl_k0, rl_k1]; in uniform rows slid to the next right pixel when it is rl_q + 1 in the same
+  // row (rl_stamp).
   std::vector<float> hr;
   int rl_q = -10, rl_k0 = 0, rl_k1 = -1, rl_stamp = -1;
   float* prof0 = nullptr;  // profile buffer, index 0 = first disparity of the range
@@ -424,20 +423,9 @@ ES_INLINE void sliceUpdate(const SliceArgs& g) {
   const V8f vninf = splat8(kNegInf);
   const V8f vzero = splat8(0.f);
   for (; i + 8 <= n; i += 8) {
-    V8f hs;
-    if (kW > 0) {
-      // The window width known at compile time: the horizontal sum unrolled (the first window
-      // is where almost all pixels are decided).
-      V8f a0 = load8(vs + i), a1 = load8(vs + i + 1);
-      for (int j = 2; j + 1 < kW; j += 2) {
-        a0 += load8(vs + i + j);
-        a1 += load8(vs + i + j + 1);
-      }
-      if (kW % 2) a0 += load8(vs + i + kW - 1);
-      hs = a0 + a1;
-    } else {
-      hs = vs ? boxSum8(vs + i, w) : load8(h + i);
-    }
+    // With the window width known at compile time (kW) the horizontal sum unrolls: the first
+    // window is where almost all pixels are decided.
+    const V8f hs = (kW > 0 || vs) ? boxSum8(vs + i, w) : load8(h + i);
     const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
     const V8f lo = load8(elo + i), hi = load8(ehi + i);
     const V8i inr = (lo <= vd) & (vd <= hi);
@@ -1830,16 +1818,11 @@ void sparseProfiles(const LevelContext& c, Scratch& s, int y) {
         ++next;
         int lo = 0, hi = -1;
         effectiveRange(c, s, x, &lo, &hi);
-        if (c.uniform_ranges) {
-          const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
-          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
-                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
-        } else {
-          // Left statistics: computed for the run above. Right statistics of x - d for d = lo .. hi: mirrored, computed for the run above.
-          const int m = c.width - 1 - x + lo;
-          nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
-                     s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
-        }
+        // Statistics at hand: row-wide for uniform rows, computed for the run above with
+        // per-pixel ranges (left, and right mirrored: x - d for d = lo .. hi).
+        const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
+        nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
+                   s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, s.prof0);
         scanProfile(s.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
                     &s.best_r[x], &s.second[x]);
       }
@@ -1883,6 +1866,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   // Disparities whose left pixel q + d has d in its range: all of them inside the border with a
   // full search; with per-pixel ranges (narrow) usually a few, and only their columns are needed.
   int dv0 = std::max(c.dmin, r - q), dv1 = std::min(c.dmax, c.width - 1 - r - q);
+  int first_ok = 0;  // per-pixel ranges: index in s.rl_ok of dv0 after the cut below
   if (!c.uniform_ranges) {
     // The disparities d whose left pixel q + d holds d in its effective range, listed once.
     // q is inside the border and q + d is too (dv0, dv1), so pixel q + d's effective range holds
@@ -1901,7 +1885,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
       dv0 = 1;
       dv1 = 0;
     } else {
-      s.rl_first = first;
+      first_ok = first;
       dv1 = dv0 + last;
       dv0 = dv0 + first;
     }
@@ -1928,7 +1912,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
               cs0 + static_cast<size_t>(q - r - 1) * dp);
   } else {
     for (int qq = q - r; qq <= q + r; ++qq) ensureColumnR(c, s, qq, y, k0, k1);
-    h = c.uniform_ranges ? s.hr.data() : s.hvec.data();
+    h = s.hr.data();
     std::memcpy(h + k0, cs0 + static_cast<size_t>(q - r) * dp, sizeof(float) * (k1 - k0 + 1));
     for (int qq = q - r + 1; qq <= q + r; ++qq) vecAdd(k1 - k0 + 1, h + k0, cs0 + qq * dp);
   }
@@ -1951,7 +1935,7 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
     const int n = dv1 - dv0 + 1;
     nccSpan(n, h + (dv0 - c.dmin), s.maps.mean_l.data() + q + dv0, s.maps.inv_l.data() + q + dv0,
             s.maps.sum_r[q], s.maps.inv_r[q], v);
-    maskOut(n, v, s.rl_ok.data() + s.rl_first);
+    maskOut(n, v, s.rl_ok.data() + first_ok);
     const int i = firstMax(v, n);  // the first valid disparity is valid: a finite value
     rv = v[i];
     rd = static_cast<float>(dv0 + i);
