@@ -755,11 +755,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   lo_src.create(H, W, CV_32F);
   hi_src.create(H, W, CV_32F);
   constexpr int kRowBlock = 32;  // rows per task of the per-row passes over the threads
-  cv::parallel_for_(cv::Range(0, (H + kRowBlock - 1) / kRowBlock), [&](const cv::Range& rg) {
-    for (int y = rg.start * kRowBlock; y < std::min(H, rg.end * kRowBlock); ++y) {
-      boundsRow(out.disparity.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
-    }
-  });
+  const int num_blocks = (H + kRowBlock - 1) / kRowBlock;
   const bool on = mp.edge_disparity_jump_px > 0.0;
   const float below = on ? static_cast<float>(mp.edge_disparity_jump_px) : inf;
   const float above = !on ? inf
@@ -776,21 +772,38 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   // Pixels accepted per window size (the first window: nearly all of them; the larger ones: few),
   // in one pass: the larger windows' pixels listed (and counted by their list), the first
   // window's counted; its pixels are listed below only when few enough to be scanned directly.
+  // With the map test's sources, in row blocks over the threads; each block lists its own
+  // pixels, and the blocks' lists are joined in row order (the order a serial pass gives).
   std::vector<std::vector<cv::Point>> by_level(num_levels);
   std::vector<size_t> level_count(num_levels, 0);
   {
-    std::vector<uint8_t> sel(W + 8, 0);
-    for (int y = 0; y < H; ++y) {
-      const uint8_t* k = window_idx.ptr<uint8_t>(y);
-      level_count[0] += acceptedRow(out.code.ptr<uint8_t>(y), k, W, sel.data());
-      // The larger windows' pixels are few: skip eight clear pixels at a time.
-      for (int x0 = 0; x0 < W; x0 += 8) {
-        uint64_t word;
-        std::memcpy(&word, sel.data() + x0, sizeof(word));
-        if (word == 0) continue;
-        for (int x = x0; x < std::min(W, x0 + 8); ++x) {
-          if (sel[x]) by_level[k[x]].push_back(cv::Point(x, y));
+    std::vector<std::vector<std::vector<cv::Point>>> block_lists(
+        num_blocks, std::vector<std::vector<cv::Point>>(num_levels));
+    std::vector<size_t> block_first(num_blocks, 0);
+    cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+      std::vector<uint8_t> sel(W + 8, 0);
+      for (int blk = rg.start; blk < rg.end; ++blk) {
+        for (int y = blk * kRowBlock; y < std::min(H, (blk + 1) * kRowBlock); ++y) {
+          boundsRow(out.disparity.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
+          const uint8_t* k = window_idx.ptr<uint8_t>(y);
+          block_first[blk] += acceptedRow(out.code.ptr<uint8_t>(y), k, W, sel.data());
+          // The larger windows' pixels are few: skip eight clear pixels at a time.
+          for (int x0 = 0; x0 < W; x0 += 8) {
+            uint64_t word;
+            std::memcpy(&word, sel.data() + x0, sizeof(word));
+            if (word == 0) continue;
+            for (int x = x0; x < std::min(W, x0 + 8); ++x) {
+              if (sel[x]) block_lists[blk][k[x]].push_back(cv::Point(x, y));
+            }
+          }
         }
+      }
+    });
+    for (int blk = 0; blk < num_blocks; ++blk) {
+      level_count[0] += block_first[blk];
+      for (int level = 1; level < num_levels; ++level) {
+        const std::vector<cv::Point>& l = block_lists[blk][level];
+        by_level[level].insert(by_level[level].end(), l.begin(), l.end());
       }
     }
   }
@@ -878,22 +891,35 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
       });
       CV_Assert(lo_map.data == lo.data && hi_map.data == hi.data);  // written in place
       base_maps = level == 0;
-      std::vector<uint8_t> hits(W + 8, 0);
-      for (int y = 0; y < H; ++y) {
-        const float* a = lo_map.ptr<float>(y);
-        const float* b = hi_map.ptr<float>(y);
-        straddleRow(out.code.ptr<uint8_t>(y), window_idx.ptr<uint8_t>(y),
-                    out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
-                    hits.data());
-        // Hits are rare: skip eight clear pixels at a time.
-        for (int x0 = 0; x0 < W; x0 += 8) {
-          uint64_t word;
-          std::memcpy(&word, hits.data() + x0, sizeof(word));
-          if (word == 0) continue;
-          for (int x = x0; x < std::min(W, x0 + 8); ++x) {
-            if (hits[x]) judge(x, y, a[x], b[x]);
+      // The rows' hits found in row blocks over the threads, then judged in row order.
+      struct Hit {
+        int x, y;
+        float a, b;
+      };
+      std::vector<std::vector<Hit>> block_hits(num_blocks);
+      cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+        std::vector<uint8_t> hits(W + 8, 0);
+        for (int blk = rg.start; blk < rg.end; ++blk) {
+          for (int y = blk * kRowBlock; y < std::min(H, (blk + 1) * kRowBlock); ++y) {
+            const float* a = lo_map.ptr<float>(y);
+            const float* b = hi_map.ptr<float>(y);
+            straddleRow(out.code.ptr<uint8_t>(y), window_idx.ptr<uint8_t>(y),
+                        out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
+                        hits.data());
+            // Hits are rare: skip eight clear pixels at a time.
+            for (int x0 = 0; x0 < W; x0 += 8) {
+              uint64_t word;
+              std::memcpy(&word, hits.data() + x0, sizeof(word));
+              if (word == 0) continue;
+              for (int x = x0; x < std::min(W, x0 + 8); ++x) {
+                if (hits[x]) block_hits[blk].push_back(Hit{x, y, a[x], b[x]});
+              }
+            }
           }
         }
+      });
+      for (const std::vector<Hit>& hs : block_hits) {
+        for (const Hit& h : hs) judge(h.x, h.y, h.a, h.b);
       }
     } else if (base_maps && half >= levelSide(0) / 2) {
       // Few pixels, the first window's erosion and dilation at hand: the neighbourhood

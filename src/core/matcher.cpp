@@ -528,6 +528,7 @@ struct RobustMatcher::Impl : FrameData {
   cv::Mat window_idx;  // CV_8U window index that accepted
   cv::Mat tmp1, tmp2, tmp3, tmp4, tmp5, code_before;
   std::vector<std::vector<int>> open_rows;
+  std::vector<int> open_level;
   std::vector<int> n_req_rows;
 
   std::mutex pool_mutex;
@@ -578,9 +579,11 @@ struct LevelContext {
   int dmin, dmax;
   cv::Mat* state;  // 1 = accepted earlier
   cv::Mat* window_idx;
-  // Per row: the columns still open (requested range, not accepted), sorted; built at the first
-  // window, filtered at each later one, so the larger windows never scan whole rows.
+  // Per row: the columns still open (requested range, not accepted), sorted; built at the
+  // row's first sparse window size, filtered at each later one, so the larger windows never scan
+  // whole rows; open_level = the window size (level) the list is for (-1: none yet).
   std::vector<std::vector<int>>* open_rows;
+  std::vector<int>* open_level;
   std::vector<int>* n_req_rows;  // per row: pixels with a requested range (first window)
   MatchResult* out;
 };
@@ -2069,29 +2072,40 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // Open = requested range, not accepted yet. Dense when most of the row is open (the first
   // window): then every column's range and statistics are needed and computed row-wide; sparse
   // rows compute them where needed.
+  // Pixel x is open at this level when it lies inside the window's border, has a requested
+  // range and was not accepted with a smaller window. Dense rows test that row-wide (below);
+  // sparse rows keep the open pixels as a list: built from the row at the row's first sparse
+  // level, then filtered from level to level (a row never turns dense again: its open pixels
+  // only get fewer). The first window counts the requested pixels and builds no list.
   std::vector<int>& open = (*c.open_rows)[y];
+  int& open_level = (*c.open_level)[y];
+  int n_open = 0;
   if (c.level == 0) {
-    open.resize(W);
-    int n = 0;
-    for (int x = r; x < W - r; ++x) {
-      open[n] = x;
-      n += rlo[x] <= rhi[x];
-    }
-    open.resize(n);
-    (*c.n_req_rows)[y] = n;
-  } else {
+    for (int x = r; x < W - r; ++x) n_open += rlo[x] <= rhi[x];
+    (*c.n_req_rows)[y] = n_open;
+  } else if (open_level == c.level - 1) {
     // Drop the pixels accepted with the smaller windows and those the larger window's border
     // excludes (it only grows).
     size_t kept = 0;
     for (const int x : open) {
-      if (st[x] == 0 && x >= r && x < W - r) open[kept++] = x;
+      open[kept] = x;
+      kept += (st[x] == 0) & (x >= r) & (x < W - r);
     }
     open.resize(kept);
+    open_level = c.level;
+    n_open = static_cast<int>(kept);
+  } else {
+    open.resize(W);
+    for (int x = r; x < W - r; ++x) {
+      open[n_open] = x;
+      n_open += (rlo[x] <= rhi[x]) & (st[x] == 0);
+    }
+    open.resize(n_open);
   }
-  const int n_open = static_cast<int>(open.size());
-  if (n_open == 0) return;
   // The engine choice only decides speed: both give the same values.
-  const bool dense = 2 * n_open >= (*c.n_req_rows)[y];
+  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y];
+  if (!dense && c.level > 0) open_level = c.level;  // the list just built or filtered
+  if (n_open == 0) return;
   if (dense) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
@@ -2139,26 +2153,28 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
   if (dense) {
-    // Branch-free over the row: the effective ranges and structure values are all at hand.
-    s.active.resize(n_open);
-    int* act_list = s.active.data();
+    // Branch-free over the whole row: the effective ranges and structure values
+    // are all at hand. act[x] = 1 marks the active pixels (the dense engines' list).
     int na = 0;
     const int* __restrict elo_i = s.elo_i.data();
     const int* __restrict ehi_i = s.ehi_i.data();
     const float* __restrict gl = s.maps.gamma_l.data();
-    for (const int x : open) {
+    float* __restrict act = s.act.data();
+    const int x_lo = r, x_hi = W - r;
+    for (int x = 0; x < W; ++x) {
+      const bool is_open = (x >= x_lo) & (x < x_hi) & (rlo[x] <= rhi[x]) & (st[x] == 0);
       const int lo = elo_i[x], hi = ehi_i[x];
-      const bool searched = lo <= hi;  // else outside the matchable area: code stays
+      const bool searched = is_open & (lo <= hi);  // else outside the matchable area: code stays
       const bool narrow = hi - lo < 2;
       const bool flat = !(gl[x] > gmin);
       const uint8_t keep = code[x];
       code[x] = !searched ? keep
                           : (narrow ? uint8_t{kCodeNoPeak}
                                     : (flat ? uint8_t{kCodeRejectStructure} : keep));
-      act_list[na] = x;
-      na += searched & !narrow & !flat;
+      const bool a = searched & !narrow & !flat;
+      act[x] = a ? 1.f : 0.f;
+      na += a;
     }
-    s.active.resize(na);
     if (na == 0) return;
     std::fill(s.best.begin(), s.best.begin() + W, kNegInf);
     std::fill(s.second.begin(), s.second.begin() + W, kNegInf);
@@ -2202,10 +2218,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     return s.best[x] - comp;
   };
   if (dense) {
-    std::fill(s.act.begin(), s.act.begin() + W, 0.f);
     std::fill(s.p1.begin(), s.p1.begin() + W, kNegInf);
     std::fill(s.p2.begin(), s.p2.begin() + W, kNegInf);
-    for (int x : s.active) s.act[x] = 1.f;
     std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
     std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
     if (c.uniform_ranges) {
@@ -2505,6 +2519,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
   im.open_rows.resize(H);
+  im.open_level.assign(H, -1);
   im.n_req_rows.assign(H, 0);
   const int num_stripes = (H + kStripeRows - 1) / kStripeRows;
   std::vector<LevelContext> levels;
@@ -2513,7 +2528,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
     if (w > W || w > H) break;
     levels.push_back(LevelContext{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity,
                                   mp.max_disparity, &im.state, &im.window_idx, &im.open_rows,
-                                  &im.n_req_rows, &out});
+                                  &im.open_level, &im.n_req_rows, &out});
   }
   // A row's window sizes depend only on that row (its open pixels, its requested ranges and the
   // images), so each stripe runs through all window sizes on its own: no barrier between window
