@@ -599,8 +599,72 @@ inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
       static_cast<int32_t>((bot[x + r + 1] - top[x + r + 1]) - (bot[x - r] - top[x - r])));
 }
 
-ES_KERNEL void addRows(int n, uint32_t* __restrict out, const uint32_t* __restrict above) {
-  for (int i = 0; i < n; ++i) out[i] += above[i];
+typedef uint32_t V8u __attribute__((vector_size(32)));
+
+/// Inclusive prefix sum over the 8 lanes of @p v (three shifted adds), plus @p carry in every lane.
+ES_INLINE V8u lanePrefix(V8u v, V8u carry) {
+  const V8u z = {0, 0, 0, 0, 0, 0, 0, 0};
+  v += __builtin_shufflevector(z, v, 0, 8, 9, 10, 11, 12, 13, 14);
+  v += __builtin_shufflevector(z, v, 0, 1, 8, 9, 10, 11, 12, 13);
+  v += __builtin_shufflevector(z, v, 0, 1, 2, 3, 8, 9, 10, 11);
+  return v + carry;
+}
+ES_INLINE V8u lastLane(V8u v) { return __builtin_shufflevector(v, v, 7, 7, 7, 7, 7, 7, 7, 7); }
+
+/// One row of the four integral images (see wrappedIntegrals): out[x + 1] = out_above[x + 1] +
+/// the row's prefix sum up to x, for v, v^2, g, g^2; modulo 2^32. Eight columns at a time (the
+/// row's prefix sums within a vector by shifted adds, the running total carried from vector to
+/// vector), the rest one by one; unsigned 32-bit additions, so the same values in any order.
+ES_KERNEL void integralRow(int W, const uint8_t* __restrict v, const int16_t* __restrict g,
+                           const uint32_t* __restrict pv, const uint32_t* __restrict ps,
+                           const uint32_t* __restrict pg, const uint32_t* __restrict pq,
+                           uint32_t* __restrict ov, uint32_t* __restrict os,
+                           uint32_t* __restrict og, uint32_t* __restrict oq) {
+  typedef uint8_t V8b __attribute__((vector_size(8)));
+  typedef int16_t V8s __attribute__((vector_size(16)));
+  typedef int32_t V8i32 __attribute__((vector_size(32)));
+  ov[0] = os[0] = og[0] = oq[0] = 0;
+  V8u cv = {0, 0, 0, 0, 0, 0, 0, 0}, cs = cv, cg = cv, cq = cv;
+  auto put = [](uint32_t* o, const uint32_t* p, V8u sum) {
+    V8u above;
+    std::memcpy(&above, p, sizeof(above));
+    const V8u out = sum + above;
+    std::memcpy(o, &out, sizeof(out));
+  };
+  int x = 0;
+  for (; x + 8 <= W; x += 8) {
+    V8b vb;
+    V8s gs;
+    std::memcpy(&vb, v + x, sizeof(vb));
+    std::memcpy(&gs, g + x, sizeof(gs));
+    const V8u a = __builtin_convertvector(vb, V8u);
+    const V8i32 gi = __builtin_convertvector(gs, V8i32);
+    cv = lanePrefix(a, cv);
+    cs = lanePrefix(a * a, cs);
+    cg = lanePrefix(reinterpret_cast<V8u>(gi), cg);
+    cq = lanePrefix(reinterpret_cast<V8u>(gi * gi), cq);
+    put(ov + x + 1, pv + x + 1, cv);
+    put(os + x + 1, ps + x + 1, cs);
+    put(og + x + 1, pg + x + 1, cg);
+    put(oq + x + 1, pq + x + 1, cq);
+    cv = lastLane(cv);
+    cs = lastLane(cs);
+    cg = lastLane(cg);
+    cq = lastLane(cq);
+  }
+  uint32_t rv = cv[0], rs = cs[0], rg = cg[0], rq = cq[0];
+  for (; x < W; ++x) {
+    const uint32_t vv = v[x];
+    const int32_t gg = g[x];
+    rv += vv;
+    rs += vv * vv;
+    rg += static_cast<uint32_t>(gg);
+    rq += static_cast<uint32_t>(gg * gg);
+    ov[x + 1] = rv + pv[x + 1];
+    os[x + 1] = rs + ps[x + 1];
+    og[x + 1] = rg + pg[x + 1];
+    oq[x + 1] = rq + pq[x + 1];
+  }
 }
 
 /// Integral images (CV_32S, (H + 1) x (W + 1), zero first row and column) of v and v^2 for the
@@ -620,36 +684,10 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sum, cv::
   std::fill(int_lap.ptr<uint32_t>(0), int_lap.ptr<uint32_t>(0) + W + 1, 0u);
   std::fill(sq_lap.ptr<uint32_t>(0), sq_lap.ptr<uint32_t>(0) + W + 1, 0u);
   for (int y = 0; y < H; ++y) {
-    const uint8_t* v = img.ptr<uint8_t>(y);
-    const int16_t* g = lap.ptr<int16_t>(y);
-    const uint32_t* pv = sum.ptr<uint32_t>(y);
-    const uint32_t* ps = sq.ptr<uint32_t>(y);
-    const uint32_t* pg = int_lap.ptr<uint32_t>(y);
-    const uint32_t* pq = sq_lap.ptr<uint32_t>(y);
-    uint32_t* ov = sum.ptr<uint32_t>(y + 1);
-    uint32_t* os = sq.ptr<uint32_t>(y + 1);
-    uint32_t* og = int_lap.ptr<uint32_t>(y + 1);
-    uint32_t* oq = sq_lap.ptr<uint32_t>(y + 1);
-    // Row prefix sums (a serial chain each) into the output row, then the row above added in a
-    // separate, vectorised pass.
-    uint32_t rv = 0, rs = 0, rg = 0, rq = 0;
-    ov[0] = os[0] = og[0] = oq[0] = 0;
-    for (int x = 0; x < W; ++x) {
-      const uint32_t vv = v[x];
-      const int32_t gg = g[x];
-      rv += vv;
-      rs += vv * vv;
-      rg += static_cast<uint32_t>(gg);
-      rq += static_cast<uint32_t>(gg * gg);
-      ov[x + 1] = rv;
-      os[x + 1] = rs;
-      og[x + 1] = rg;
-      oq[x + 1] = rq;
-    }
-    addRows(W, ov + 1, pv + 1);
-    addRows(W, os + 1, ps + 1);
-    addRows(W, og + 1, pg + 1);
-    addRows(W, oq + 1, pq + 1);
+    integralRow(W, img.ptr<uint8_t>(y), lap.ptr<int16_t>(y), sum.ptr<uint32_t>(y),
+                sq.ptr<uint32_t>(y), int_lap.ptr<uint32_t>(y), sq_lap.ptr<uint32_t>(y),
+                sum.ptr<uint32_t>(y + 1), sq.ptr<uint32_t>(y + 1), int_lap.ptr<uint32_t>(y + 1),
+                sq_lap.ptr<uint32_t>(y + 1));
   }
 }
 
