@@ -341,11 +341,25 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   }
 }
 
-// Column sums of the sparse engine (r read mirrored, so that disparities are contiguous).
-/// A column's window sums afresh: cs[k] = sum over j < rows of l[j * l_step] * r[j * r_step + k],
-/// the rows summed in increasing order (one call instead of one per row).
-ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
-                        const float* __restrict r, size_t r_step, int rows) {
+// Column sums of the sparse engine (r read mirrored, so that disparities are contiguous). Each
+// kernel also has a path for n == 64 (a full search of 64 disparities, the common case) with the
+// count known at compile time: the loops unroll, and colFresh keeps its sums in registers across
+// the rows. The same operations in the same order: the same values.
+template <int kN>
+ES_INLINE void colFreshN(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
+                         const float* __restrict r, size_t r_step, int rows) {
+  if (kN > 0) {
+    V8f acc[kN > 0 ? kN / 8 : 1];
+    const V8f l0 = splat8(l[0]);
+    for (int g = 0; g < kN / 8; ++g) acc[g] = l0 * load8(r + 8 * g);
+    for (int j = 1; j < rows; ++j) {
+      const V8f lj = splat8(l[j * l_step]);
+      const float* __restrict rj = r + j * r_step;
+      for (int g = 0; g < kN / 8; ++g) acc[g] += lj * load8(rj + 8 * g);
+    }
+    for (int g = 0; g < kN / 8; ++g) store8(cs + 8 * g, acc[g]);
+    return;
+  }
   const float l0 = l[0];
   for (int k = 0; k < n; ++k) cs[k] = l0 * r[k];
   for (int j = 1; j < rows; ++j) {
@@ -354,16 +368,45 @@ ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, 
     for (int k = 0; k < n; ++k) cs[k] += lj * rj[k];
   }
 }
+/// A column's window sums afresh: cs[k] = sum over j < rows of l[j * l_step] * r[j * r_step + k],
+/// the rows summed in increasing order (one call instead of one per row).
+ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
+                        const float* __restrict r, size_t r_step, int rows) {
+  if (n == 64) {
+    colFreshN<64>(n, cs, l, l_step, r, r_step, rows);
+  } else {
+    colFreshN<0>(n, cs, l, l_step, r, r_step, rows);
+  }
+}
 ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
                           float l_out, const float* __restrict r_out) {
   for (int k = 0; k < n; ++k) cs[k] += l_in * r_in[k] - l_out * r_out[k];
 }
+template <int kN>
+ES_INLINE void vecAddN(int n, float* __restrict h, const float* __restrict a) {
+  const int m = kN > 0 ? kN : n;
+  for (int k = 0; k < m; ++k) h[k] += a[k];
+}
 ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
-  for (int k = 0; k < n; ++k) h[k] += a[k];
+  if (n == 64) {
+    vecAddN<64>(n, h, a);
+  } else {
+    vecAddN<0>(n, h, a);
+  }
+}
+template <int kN>
+ES_INLINE void vecAddSubN(int n, float* __restrict h, const float* __restrict a,
+                          const float* __restrict b) {
+  const int m = kN > 0 ? kN : n;
+  for (int k = 0; k < m; ++k) h[k] += a[k] - b[k];
 }
 ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
                          const float* __restrict b) {
-  for (int k = 0; k < n; ++k) h[k] += a[k] - b[k];
+  if (n == 64) {
+    vecAddSubN<64>(n, h, a, b);
+  } else {
+    vecAddSubN<0>(n, h, a, b);
+  }
 }
 
 /// Inputs of the dense engine's per-disparity update of one row interval. Pointers are offset so
@@ -1253,7 +1296,11 @@ ES_KERNEL void hotRunning(int count, const int* __restrict cols, int base0, int 
     const float si = s_in[x], so = s_out[x];
     const float* __restrict vi = v_in + base;
     const float* __restrict vo = v_out + base;
-    for (int k = 0; k < n; ++k) cs[k] += si * vi[k] - so * vo[k];
+    if (n == 64) {
+      for (int k = 0; k < 64; ++k) cs[k] += si * vi[k] - so * vo[k];
+    } else {
+      for (int k = 0; k < n; ++k) cs[k] += si * vi[k] - so * vo[k];
+    }
   }
 }
 
@@ -1547,6 +1594,24 @@ struct LaneRowArgs {
   float *best, *best_d, *best_l, *best_r, *second;
 };
 
+/// v[k] += li * ri[k] - lo * ro[k] for k < n (a multiple of 8): one row in and one out of a
+/// column's vertical sums. kN > 0: n == kN, known at compile time (the loop unrolls; a full
+/// search of 64 disparities, the common case).
+template <int kN>
+ES_INLINE void laneRunning(int n, float* __restrict v, V8f li, V8f lo, const float* __restrict ri,
+                           const float* __restrict ro) {
+  const int m = kN > 0 ? kN : n;
+  for (int k = 0; k < m; k += 8) store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
+}
+/// h[k] += in[k] - out[k] for k < n (a multiple of 8): the window sums slid by one column; kN as
+/// in laneRunning.
+template <int kN>
+ES_INLINE void laneSlide(int n, float* __restrict h, const float* __restrict in,
+                         const float* __restrict out) {
+  const int m = kN > 0 ? kN : n;
+  for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(in + k) - load8(out + k)));
+}
+
 /// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
 ES_KERNEL void lanePass1(const LaneRowArgs& a) {
   const int W = a.width, dp = a.dp;
@@ -1559,10 +1624,10 @@ ES_KERNEL void lanePass1(const LaneRowArgs& a) {
     float* __restrict v = a.vl + static_cast<size_t>(x) * dp + k0;
     if (a.running) {
       const V8f li = splat8(a.l_in[x]), lo = splat8(a.l_out[x]);
-      const float* __restrict ri = a.r_in + base;
-      const float* __restrict ro = a.r_out + base;
-      for (int k = 0; k < n; k += 8) {
-        store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
+      if (n == 64) {
+        laneRunning<64>(n, v, li, lo, a.r_in + base, a.r_out + base);
+      } else {
+        laneRunning<0>(n, v, li, lo, a.r_in + base, a.r_out + base);
       }
     } else {
       const V8f l0 = splat8(a.l_rows[0][x]);
@@ -1597,7 +1662,11 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     if (a.slide && x > r) {
       const float* __restrict in = a.vl + static_cast<size_t>(x + r) * dp;
       const float* __restrict out = a.vl + static_cast<size_t>(x - r - 1) * dp;
-      for (int k = 0; k < dp; k += 8) store8(h + k, load8(h + k) + (load8(in + k) - load8(out + k)));
+      if (dp == 64) {
+        laneSlide<64>(dp, h, in, out);
+      } else {
+        laneSlide<0>(dp, h, in, out);
+      }
     }
     const int lo = a.elo[x], hi = a.ehi[x];
     if (lo > hi) continue;
