@@ -1375,10 +1375,23 @@ inline void ensureColumnR(const LevelContext& c, Scratch& s, int q, int y, int k
 
 /// S(x, d) for d = lo .. lo + n - 1 of one left pixel (mean_l, inv_l) against the mirrored right
 /// statistics (index i = d - lo). The same expression as nccValue.
+template <int kN>
+ES_INLINE void nccProfileN(int n, const float* __restrict h, float mean_l, float inv_l,
+                           const float* __restrict sum_r_rev, const float* __restrict inv_r_rev,
+                           float* __restrict out) {
+  const int m = kN > 0 ? kN : n;
+  for (int i = 0; i < m; ++i) out[i] = (h[i] - mean_l * sum_r_rev[i]) * inv_l * inv_r_rev[i];
+}
+/// S over a profile of n disparities (n == 64, the full search, with the count fixed at
+/// compile time).
 ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float inv_l,
                           const float* __restrict sum_r_rev, const float* __restrict inv_r_rev,
                           float* __restrict out) {
-  for (int i = 0; i < n; ++i) out[i] = (h[i] - mean_l * sum_r_rev[i]) * inv_l * inv_r_rev[i];
+  if (n == 64) {
+    nccProfileN<64>(n, h, mean_l, inv_l, sum_r_rev, inv_r_rev, out);
+  } else {
+    nccProfileN<0>(n, h, mean_l, inv_l, sum_r_rev, inv_r_rev, out);
+  }
 }
 
 /// Greatest lane, in every lane (three butterfly steps).
@@ -1500,7 +1513,16 @@ ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* b
   V8i bk = {0, 0, 0, 0, 0, 0, 0, 0};
   const int g1 = khi / 8;
   V8i kk = lane;
-  for (int g = 0; g <= g1; ++g, kk += eight_i) peakGroup<true>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+  if (n == 64) {
+    // A full search of 64: only the first and the last group hold a range end (masked); the
+    // count fixed at compile time.
+    peakGroup<true>(0, kk, vklo, vkhi, prof, bv, sv, bk);
+    kk += eight_i;
+    for (int g = 1; g < 7; ++g, kk += eight_i) peakGroup<false>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+    peakGroup<true>(56, kk, vklo, vkhi, prof, bv, sv, bk);
+  } else {
+    for (int g = 0; g <= g1; ++g, kk += eight_i) peakGroup<true>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+  }
   const V8f bmax = hmax8(bv);
   const float b = bmax[0];
   float sec = kNegInf;
