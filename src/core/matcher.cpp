@@ -55,6 +55,7 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <stdexcept>
+#include <type_traits>
 #include <vector>
 
 #include "edge_test.hpp"
@@ -341,72 +342,98 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   }
 }
 
-// Column sums of the sparse engine (r read mirrored, so that disparities are contiguous). Each
-// kernel also has a path for n == 64 (a full search of 64 disparities, the common case) with the
-// count known at compile time: the loops unroll, and colFresh keeps its sums in registers across
-// the rows. The same operations in the same order: the same values.
-template <int kN>
-ES_INLINE void colFreshN(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
-                         const float* __restrict r, size_t r_step, int rows) {
-  if (kN > 0) {
-    V8f acc[kN > 0 ? kN / 8 : 1];
+// Column sums of the sparse engine (r read mirrored, so that disparities are contiguous). Their
+// counts n are whole 8-lane groups (the requests are rounded out to groups: columnRequest), so
+// the kernels run over groups, and for up to 8 groups (64 disparities: a full search of 64, or
+// the few groups of a narrowed range) with the group count fixed at compile time: the loops
+// unroll, and colFresh keeps its sums in registers across the rows. The same operations in the
+// same order: the same values.
+constexpr int kMaxUnrolledGroups = 8;
+
+/// Calls fn(std::integral_constant<int, G>) with G = n / 8 when 1 <= G <= kMaxUnrolledGroups,
+/// else fn(std::integral_constant<int, 0>) (G at run time).
+template <typename Fn>
+ES_INLINE void byGroups(int n, Fn&& fn) {
+  if (n == 64) {  // the full search's count first: one predictable branch, no jump table
+    fn(std::integral_constant<int, 8>());
+    return;
+  }
+  switch (n / 8) {
+    case 1: fn(std::integral_constant<int, 1>()); break;
+    case 2: fn(std::integral_constant<int, 2>()); break;
+    case 3: fn(std::integral_constant<int, 3>()); break;
+    case 4: fn(std::integral_constant<int, 4>()); break;
+    case 5: fn(std::integral_constant<int, 5>()); break;
+    case 6: fn(std::integral_constant<int, 6>()); break;
+    case 7: fn(std::integral_constant<int, 7>()); break;
+    case 8: fn(std::integral_constant<int, 8>()); break;
+    default: fn(std::integral_constant<int, 0>()); break;
+  }
+}
+
+/// A column's window sums afresh: cs[k] = sum over j < rows of l[j * l_step] * r[j * r_step + k],
+/// the rows summed in increasing order (one call instead of one per row); n whole groups.
+ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
+                        const float* __restrict r, size_t r_step, int rows) {
+  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
+    constexpr int kG = decltype(groups)::value;
+    if (kG > 0) {
+      V8f acc[kG > 0 ? kG : 1];
+      const V8f l0 = splat8(l[0]);
+      for (int g = 0; g < kG; ++g) acc[g] = l0 * load8(r + 8 * g);
+      for (int j = 1; j < rows; ++j) {
+        const V8f lj = splat8(l[j * l_step]);
+        const float* __restrict rj = r + j * r_step;
+        for (int g = 0; g < kG; ++g) acc[g] += lj * load8(rj + 8 * g);
+      }
+      for (int g = 0; g < kG; ++g) store8(cs + 8 * g, acc[g]);
+      return;
+    }
     const V8f l0 = splat8(l[0]);
-    for (int g = 0; g < kN / 8; ++g) acc[g] = l0 * load8(r + 8 * g);
+    for (int k = 0; k < n; k += 8) store8(cs + k, l0 * load8(r + k));
     for (int j = 1; j < rows; ++j) {
       const V8f lj = splat8(l[j * l_step]);
       const float* __restrict rj = r + j * r_step;
-      for (int g = 0; g < kN / 8; ++g) acc[g] += lj * load8(rj + 8 * g);
+      for (int k = 0; k < n; k += 8) store8(cs + k, load8(cs + k) + lj * load8(rj + k));
     }
-    for (int g = 0; g < kN / 8; ++g) store8(cs + 8 * g, acc[g]);
+  });
+}
+/// cs[k] += l_in * r_in[k] - l_out * r_out[k]: one row in and one out; n whole groups.
+ES_INLINE void colStep(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
+                       float l_out, const float* __restrict r_out) {
+  if (n == 64) {  // written per element: GCC's own vectorisation of it measured fewer instructions
+    for (int k = 0; k < 64; ++k) cs[k] += l_in * r_in[k] - l_out * r_out[k];
     return;
   }
-  const float l0 = l[0];
-  for (int k = 0; k < n; ++k) cs[k] = l0 * r[k];
-  for (int j = 1; j < rows; ++j) {
-    const float lj = l[j * l_step];
-    const float* __restrict rj = r + j * r_step;
-    for (int k = 0; k < n; ++k) cs[k] += lj * rj[k];
-  }
-}
-/// A column's window sums afresh: cs[k] = sum over j < rows of l[j * l_step] * r[j * r_step + k],
-/// the rows summed in increasing order (one call instead of one per row).
-ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
-                        const float* __restrict r, size_t r_step, int rows) {
-  if (n == 64) {
-    colFreshN<64>(n, cs, l, l_step, r, r_step, rows);
-  } else {
-    colFreshN<0>(n, cs, l, l_step, r, r_step, rows);
-  }
+  const V8f li = splat8(l_in), lo = splat8(l_out);
+  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
+    constexpr int kG = decltype(groups)::value;
+    const int m = kG > 0 ? 8 * kG : n;
+    for (int k = 0; k < m; k += 8) {
+      store8(cs + k, load8(cs + k) + (li * load8(r_in + k) - lo * load8(r_out + k)));
+    }
+  });
 }
 ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
                           float l_out, const float* __restrict r_out) {
-  for (int k = 0; k < n; ++k) cs[k] += l_in * r_in[k] - l_out * r_out[k];
+  colStep(n, cs, l_in, r_in, l_out, r_out);
 }
-template <int kN>
-ES_INLINE void vecAddN(int n, float* __restrict h, const float* __restrict a) {
-  const int m = kN > 0 ? kN : n;
-  for (int k = 0; k < m; ++k) h[k] += a[k];
-}
+/// h[k] += a[k]; n whole groups.
 ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
-  if (n == 64) {
-    vecAddN<64>(n, h, a);
-  } else {
-    vecAddN<0>(n, h, a);
-  }
+  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
+    constexpr int kG = decltype(groups)::value;
+    const int m = kG > 0 ? 8 * kG : n;
+    for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + load8(a + k));
+  });
 }
-template <int kN>
-ES_INLINE void vecAddSubN(int n, float* __restrict h, const float* __restrict a,
-                          const float* __restrict b) {
-  const int m = kN > 0 ? kN : n;
-  for (int k = 0; k < m; ++k) h[k] += a[k] - b[k];
-}
+/// h[k] += a[k] - b[k]; n whole groups.
 ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
                          const float* __restrict b) {
-  if (n == 64) {
-    vecAddSubN<64>(n, h, a, b);
-  } else {
-    vecAddSubN<0>(n, h, a, b);
-  }
+  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
+    constexpr int kG = decltype(groups)::value;
+    const int m = kG > 0 ? 8 * kG : n;
+    for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(a + k) - load8(b + k)));
+  });
 }
 
 /// Inputs of the dense engine's per-disparity update of one row interval. Pointers are offset so
@@ -1293,14 +1320,7 @@ ES_KERNEL void hotRunning(int count, const int* __restrict cols, int base0, int 
     const int a = k0[x], n = k1[x] - a + 1;
     float* __restrict cs = colsum + static_cast<size_t>(x) * dp + a;
     const int base = base0 + step * x + a;
-    const float si = s_in[x], so = s_out[x];
-    const float* __restrict vi = v_in + base;
-    const float* __restrict vo = v_out + base;
-    if (n == 64) {
-      for (int k = 0; k < 64; ++k) cs[k] += si * vi[k] - so * vo[k];
-    } else {
-      for (int k = 0; k < n; ++k) cs[k] += si * vi[k] - so * vo[k];
-    }
+    colStep(n, cs, s_in[x], v_in + base, s_out[x], v_out + base);
   }
 }
 
