@@ -1713,7 +1713,7 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     const int lo = a.elo[x], hi = a.ehi[x];
     if (lo > hi) continue;
     const int klo = lo - a.dmin, khi = hi - a.dmin;
-    const int g0 = klo / 8, g1 = khi / 8;
+    const int g0 = klo >> 3, g1 = khi >> 3;  // klo, khi >= 0 (lo >= dmin)
     if (!a.slide) {
       for (int g = g0; g <= g1; ++g) {
         const float* col = a.vl + static_cast<size_t>(x - r) * dp + 8 * g;
