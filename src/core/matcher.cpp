@@ -1251,8 +1251,9 @@ inline void columnRequest(const LevelContext& c, Scratch& s, int x, int* k0, int
     }
     if (lo > hi) lo = hi = c.dmin;
   }
-  *k0 = ((lo - c.dmin) / 8) * 8;
-  *k1 = std::min(s.dpad - 1, ((hi - c.dmin) / 8) * 8 + 7);
+  // Whole 8-lane groups (lo, hi >= dmin: bit operations instead of signed divisions).
+  *k0 = (lo - c.dmin) & ~7;
+  *k1 = std::min(s.dpad - 1, (hi - c.dmin) | 7);
   s.req_stamp[x] = s.stamp;
   s.req_k0[x] = *k0;
   s.req_k1[x] = *k1;
@@ -1921,8 +1922,8 @@ void runRequests(const LevelContext& c, Scratch& s, size_t i, size_t j) {
     int h = std::max(ph[t], gh[t + k - 1]);
     if (l > h) l = h = c.dmin;
     s.req_stamp[x] = s.stamp;
-    s.req_k0[x] = ((l - c.dmin) / 8) * 8;
-    s.req_k1[x] = std::min(s.dpad - 1, ((h - c.dmin) / 8) * 8 + 7);
+    s.req_k0[x] = (l - c.dmin) & ~7;  // whole groups (l, h >= dmin)
+    s.req_k1[x] = std::min(s.dpad - 1, (h - c.dmin) | 7);
   }
 }
 
@@ -2049,8 +2050,8 @@ void sparseRightToLeft(const LevelContext& c, Scratch& s, int q, int y) {
   }
   // S_RL(q, d) sums the right-indexed columns q - r .. q + r at entry d (q is inside the border:
   // it is x - d of a pixel whose right window fits).
-  const int k0 = ((dv0 - c.dmin) / 8) * 8;
-  const int k1 = std::min(s.dpad - 1, ((dv1 - c.dmin) / 8) * 8 + 7);
+  const int k0 = (dv0 - c.dmin) & ~7;  // whole groups (dv0, dv1 >= dmin)
+  const int k1 = std::min(s.dpad - 1, (dv1 - c.dmin) | 7);
   float* h;
   const float* cs0 = s.colsum_r.data() + k0;
   const size_t dp = static_cast<size_t>(s.dpad);
