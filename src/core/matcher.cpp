@@ -2139,6 +2139,7 @@ struct DecideArgs {
 /// the caller.
 ES_KERNEL int decideDense(const DecideArgs& a) {
   typedef uint8_t V8u8 __attribute__((vector_size(8)));
+  typedef int8_t V8s8 __attribute__((vector_size(8)));
   const V8f vzero = splat8(0.f), vone = splat8(1.f), vninf = splat8(kNegInf);
   const V8f vgmin = splat8(a.gmin), vdelta = splat8(a.delta_min), veps = splat8(a.eps);
   const V8f vfull = splat8(a.min_ncc_full), vnarrow = splat8(a.min_ncc_narrow);
@@ -2149,7 +2150,7 @@ ES_KERNEL int decideDense(const DecideArgs& a) {
   const V8i c_gap = V8i{} + static_cast<int>(kCodeRejectPeakGap);
   const V8i c_lr = V8i{} + static_cast<int>(kCodeRejectLeftRight);
   const V8i c_acc = V8i{} + (static_cast<int>(kCodeAcceptedBase) + a.level);
-  const V8i v_level = V8i{} + a.level, v_one_i = V8i{} + 1;
+  const V8u8 v_level8 = V8u8{} + static_cast<uint8_t>(a.level), v_one8 = V8u8{} + 1;
   int x = a.x0;
   for (; x + 8 <= a.x1; x += 8) {
     const V8i active = load8(a.act + x) > vzero;
@@ -2177,10 +2178,11 @@ ES_KERNEL int decideDense(const DecideArgs& a) {
     const V8f adiff = diff < vzero ? -diff : diff;
     const V8i lr = ~(adiff < veps);
     const V8i cd = no_peak ? c_nopeak : (flat ? c_struct : (gap ? c_gap : (lr ? c_lr : c_acc)));
+    // Byte outputs selected as bytes (the masks narrowed once, not every byte row widened).
     V8u8 cb;
     std::memcpy(&cb, a.code + x, 8);
-    const V8i old_code = __builtin_convertvector(cb, V8i);
-    const V8u8 new_code = __builtin_convertvector(active ? cd : old_code, V8u8);
+    const V8s8 active8 = __builtin_convertvector(active, V8s8);
+    const V8u8 new_code = active8 ? __builtin_convertvector(cd, V8u8) : cb;
     std::memcpy(a.code + x, &new_code, 8);
     const V8i acc = active & (cd == c_acc);
     if (!anyLane(acc)) continue;
@@ -2201,8 +2203,9 @@ ES_KERNEL int decideDense(const DecideArgs& a) {
     V8u8 sb, wb;
     std::memcpy(&sb, a.stw + x, 8);
     std::memcpy(&wb, a.widx + x, 8);
-    const V8u8 ns = __builtin_convertvector(acc ? v_one_i : __builtin_convertvector(sb, V8i), V8u8);
-    const V8u8 nw = __builtin_convertvector(acc ? v_level : __builtin_convertvector(wb, V8i), V8u8);
+    const V8s8 acc8 = __builtin_convertvector(acc, V8s8);
+    const V8u8 ns = acc8 ? v_one8 : sb;
+    const V8u8 nw = acc8 ? v_level8 : wb;
     std::memcpy(a.stw + x, &ns, 8);
     std::memcpy(a.widx + x, &nw, 8);
   }
