@@ -2212,6 +2212,87 @@ ES_KERNEL int decideDense(const DecideArgs& a) {
   return x;
 }
 
+/// Effective range of each pixel of a dense row at one window size: its requested range
+/// [rlo, rhi], cut so that both windows lie inside the images (empty - kEmptyLo > kEmptyHi, and
+/// 1e9 > -1e9 as floats - outside [r, W - r) or when nothing is left). Branch-free (vectorised).
+ES_KERNEL void denseRanges(int W, int r, const int* __restrict rlo, const int* __restrict rhi,
+                           int* __restrict elo_i, int* __restrict ehi_i, float* __restrict elo,
+                           float* __restrict ehi) {
+  for (int x = 0; x < W; ++x) {
+    const bool inside = (x >= r) & (x < W - r);
+    int lo = std::max(rlo[x], x - (W - 1 - r));
+    int hi = std::min(rhi[x], x - r);
+    const bool ok = inside & (lo <= hi);
+    lo = ok ? lo : kEmptyLo;
+    hi = ok ? hi : kEmptyHi;
+    elo_i[x] = lo;
+    ehi_i[x] = hi;
+    elo[x] = ok ? static_cast<float>(lo) : 1e9f;
+    ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
+  }
+}
+
+/// The active pixels of a dense row (open at this window size: inside [r, W - r), a requested
+/// range, not accepted yet; an effective range of at least 3 values; a left patch with
+/// structure): act[x] = 1 (else 0); the open pixels that fail get their code. Returns how many
+/// are active. Branch-free over the whole row.
+ES_KERNEL int denseActive(int W, int r, const int* __restrict rlo, const int* __restrict rhi,
+                          const uint8_t* __restrict st, const int* __restrict elo_i,
+                          const int* __restrict ehi_i, const float* __restrict gl, float gmin,
+                          uint8_t* __restrict code, float* __restrict act) {
+  typedef uint8_t V8u8 __attribute__((vector_size(8)));
+  typedef int8_t V8s8 __attribute__((vector_size(8)));
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8i vr = V8i{} + r, vend = V8i{} + (W - r), two = V8i{} + 2;
+  const V8f vgmin = splat8(gmin), vone = splat8(1.f), vzero = splat8(0.f);
+  const V8u8 c_nopeak = V8u8{} + static_cast<uint8_t>(kCodeNoPeak);
+  const V8u8 c_struct = V8u8{} + static_cast<uint8_t>(kCodeRejectStructure);
+  V8i count = V8i{};
+  int x = 0;
+  // Eight columns at a time: the expressions of the loop below lane by lane, byte outputs
+  // selected as bytes.
+  for (; x + 8 <= W; x += 8) {
+    V8i rl, rh, lo, hi;
+    std::memcpy(&rl, rlo + x, sizeof(rl));
+    std::memcpy(&rh, rhi + x, sizeof(rh));
+    std::memcpy(&lo, elo_i + x, sizeof(lo));
+    std::memcpy(&hi, ehi_i + x, sizeof(hi));
+    V8u8 sb, cb;
+    std::memcpy(&sb, st + x, 8);
+    std::memcpy(&cb, code + x, 8);
+    const V8i xs = lane + x;
+    const V8i unaccepted = __builtin_convertvector(sb == V8u8{}, V8i);
+    const V8i searched = (xs >= vr) & (xs < vend) & (rl <= rh) & unaccepted & (lo <= hi);
+    const V8i narrow = (hi - lo) < two;
+    const V8i flat = ~(load8(gl + x) > vgmin);
+    const V8s8 s8 = __builtin_convertvector(searched, V8s8);
+    const V8s8 n8 = __builtin_convertvector(narrow, V8s8);
+    const V8s8 f8 = __builtin_convertvector(flat, V8s8);
+    const V8u8 nc = s8 ? (n8 ? c_nopeak : (f8 ? c_struct : cb)) : cb;
+    std::memcpy(code + x, &nc, 8);
+    const V8i a = searched & ~narrow & ~flat;
+    store8(act + x, a ? vone : vzero);
+    count -= a;  // -1 in active lanes
+  }
+  int na = 0;
+  for (int i = 0; i < 8; ++i) na += count[i];
+  for (; x < W; ++x) {
+    const bool is_open = (x >= r) & (x < W - r) & (rlo[x] <= rhi[x]) & (st[x] == 0);
+    const int lo = elo_i[x], hi = ehi_i[x];
+    const bool searched = is_open & (lo <= hi);  // else outside the matchable area: code stays
+    const bool narrow = hi - lo < 2;
+    const bool flat = !(gl[x] > gmin);
+    const uint8_t keep = code[x];
+    code[x] = !searched ? keep
+                        : (narrow ? uint8_t{kCodeNoPeak}
+                                  : (flat ? uint8_t{kCodeRejectStructure} : keep));
+    const bool a = searched & !narrow & !flat;
+    act[x] = a ? 1.f : 0.f;
+    na += a;
+  }
+  return na;
+}
+
 /// Match the active pixels of row y at one window size; writes only row y of the outputs.
 void processRow(const LevelContext& c, int y, Scratch& s) {
   const int W = c.width;
@@ -2270,22 +2351,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
     // matched themselves (their ranges bound the right-to-left profiles).
-    int* __restrict elo_i = s.elo_i.data();
-    int* __restrict ehi_i = s.ehi_i.data();
-    float* __restrict elo = s.elo.data();
-    float* __restrict ehi = s.ehi.data();
-    for (int x = 0; x < W; ++x) {
-      const bool inside = (x >= r) & (x < W - r);
-      int lo = std::max(rlo[x], x - (W - 1 - r));
-      int hi = std::min(rhi[x], x - r);
-      const bool ok = inside & (lo <= hi);
-      lo = ok ? lo : kEmptyLo;
-      hi = ok ? hi : kEmptyHi;
-      elo_i[x] = lo;
-      ehi_i[x] = hi;
-      elo[x] = ok ? static_cast<float>(lo) : 1e9f;
-      ehi[x] = ok ? static_cast<float>(hi) : -1e9f;
-    }
+    denseRanges(W, r, rlo, rhi, s.elo_i.data(), s.ehi_i.data(), s.elo.data(), s.ehi.data());
     computeRowMaps(c, s, y);
   } else {
     // The NCC statistics of the columns any open pixel's profiles or right-to-left checks can
@@ -2315,26 +2381,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   if (dense) {
     // Branch-free over the whole row: the effective ranges and structure values
     // are all at hand. act[x] = 1 marks the active pixels (the dense engines' list).
-    int na = 0;
-    const int* __restrict elo_i = s.elo_i.data();
-    const int* __restrict ehi_i = s.ehi_i.data();
-    const float* __restrict gl = s.maps.gamma_l.data();
-    float* __restrict act = s.act.data();
-    const int x_lo = r, x_hi = W - r;
-    for (int x = 0; x < W; ++x) {
-      const bool is_open = (x >= x_lo) & (x < x_hi) & (rlo[x] <= rhi[x]) & (st[x] == 0);
-      const int lo = elo_i[x], hi = ehi_i[x];
-      const bool searched = is_open & (lo <= hi);  // else outside the matchable area: code stays
-      const bool narrow = hi - lo < 2;
-      const bool flat = !(gl[x] > gmin);
-      const uint8_t keep = code[x];
-      code[x] = !searched ? keep
-                          : (narrow ? uint8_t{kCodeNoPeak}
-                                    : (flat ? uint8_t{kCodeRejectStructure} : keep));
-      const bool a = searched & !narrow & !flat;
-      act[x] = a ? 1.f : 0.f;
-      na += a;
-    }
+    const int na = denseActive(W, r, rlo, rhi, st, s.elo_i.data(), s.ehi_i.data(),
+                               s.maps.gamma_l.data(), gmin, code, s.act.data());
     if (na == 0) return;
     std::fill(s.best.begin(), s.best.begin() + W, kNegInf);
     std::fill(s.second.begin(), s.second.begin() + W, kNegInf);
