@@ -131,6 +131,20 @@ ES_KERNEL int acceptedRow(const uint8_t* c, const uint8_t* k, int n, uint8_t* se
   return first;
 }
 
+/// Calls fn(x) for each x < n with mask[x] != 0, in increasing order, skipping eight clear bytes
+/// at a time (set bytes are rare here). mask is readable up to the next multiple of 8 past n.
+template <typename Fn>
+inline void forEachSet(const uint8_t* mask, int n, Fn&& fn) {
+  for (int x0 = 0; x0 < n; x0 += 8) {
+    uint64_t word;
+    std::memcpy(&word, mask + x0, sizeof(word));
+    if (word == 0) continue;
+    for (int x = x0; x < std::min(n, x0 + 8); ++x) {
+      if (mask[x]) fn(x);
+    }
+  }
+}
+
 /// One pixel flagged by the map test, waiting for its second chance (see verifyFlagged).
 struct Flagged {
   int x, y;
@@ -787,15 +801,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
           boundsRow(out.disparity.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
           const uint8_t* k = window_idx.ptr<uint8_t>(y);
           block_first[blk] += acceptedRow(out.code.ptr<uint8_t>(y), k, W, sel.data());
-          // The larger windows' pixels are few: skip eight clear pixels at a time.
-          for (int x0 = 0; x0 < W; x0 += 8) {
-            uint64_t word;
-            std::memcpy(&word, sel.data() + x0, sizeof(word));
-            if (word == 0) continue;
-            for (int x = x0; x < std::min(W, x0 + 8); ++x) {
-              if (sel[x]) block_lists[blk][k[x]].push_back(cv::Point(x, y));
-            }
-          }
+          // The larger windows' pixels are few.
+          forEachSet(sel.data(), W,
+                     [&](int x) { block_lists[blk][k[x]].push_back(cv::Point(x, y)); });
         }
       }
     });
@@ -906,15 +914,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
             straddleRow(out.code.ptr<uint8_t>(y), window_idx.ptr<uint8_t>(y),
                         out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
                         hits.data());
-            // Hits are rare: skip eight clear pixels at a time.
-            for (int x0 = 0; x0 < W; x0 += 8) {
-              uint64_t word;
-              std::memcpy(&word, hits.data() + x0, sizeof(word));
-              if (word == 0) continue;
-              for (int x = x0; x < std::min(W, x0 + 8); ++x) {
-                if (hits[x]) block_hits[blk].push_back(Hit{x, y, a[x], b[x]});
-              }
-            }
+            // Hits are rare.
+            forEachSet(hits.data(), W,
+                       [&](int x) { block_hits[blk].push_back(Hit{x, y, a[x], b[x]}); });
           }
         }
       });

@@ -348,10 +348,9 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
 // the few groups of a narrowed range) with the group count fixed at compile time: the loops
 // unroll, and colFresh keeps its sums in registers across the rows. The same operations in the
 // same order: the same values.
-constexpr int kMaxUnrolledGroups = 8;
 
-/// Calls fn(std::integral_constant<int, G>) with G = n / 8 when 1 <= G <= kMaxUnrolledGroups,
-/// else fn(std::integral_constant<int, 0>) (G at run time).
+/// Calls fn(std::integral_constant<int, G>) with G = n / 8 when 1 <= G <= 8, else
+/// fn(std::integral_constant<int, 0>) (G at run time); n is a multiple of 8.
 template <typename Fn>
 ES_INLINE void byGroups(int n, Fn&& fn) {
   if (n == 64) {  // the full search's count first: one predictable branch, no jump table
@@ -426,14 +425,18 @@ ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
     for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + load8(a + k));
   });
 }
-/// h[k] += a[k] - b[k]; n whole groups.
-ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
-                         const float* __restrict b) {
+/// h[k] += a[k] - b[k]; n whole groups (also the dense engine's window slide, inlined there).
+ES_INLINE void addSubGroups(int n, float* __restrict h, const float* __restrict a,
+                            const float* __restrict b) {
   byGroups(n, [&](auto groups) __attribute__((always_inline)) {
     constexpr int kG = decltype(groups)::value;
     const int m = kG > 0 ? 8 * kG : n;
     for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(a + k) - load8(b + k)));
   });
+}
+ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
+                         const float* __restrict b) {
+  addSubGroups(n, h, a, b);
 }
 
 /// Inputs of the dense engine's per-disparity update of one row interval. Pointers are offset so
@@ -670,6 +673,9 @@ inline double boxAt(const cv::Mat& integral, int x, int y, int r) {
 }
 
 typedef uint32_t V8u __attribute__((vector_size(32)));
+// Eight bytes (per-pixel codes and flags) and their masks, selected as bytes.
+typedef uint8_t V8u8 __attribute__((vector_size(8)));
+typedef int8_t V8s8 __attribute__((vector_size(8)));
 
 /// Inclusive prefix sum over the 8 lanes of @p v (three shifted adds), plus @p carry in every lane.
 ES_INLINE V8u lanePrefix(V8u v, V8u carry) {
@@ -1539,10 +1545,14 @@ ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* b
     // count fixed at compile time.
     peakGroup<true>(0, kk, vklo, vkhi, prof, bv, sv, bk);
     kk += eight_i;
-    for (int g = 1; g < 7; ++g, kk += eight_i) peakGroup<false>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+    for (int g = 1; g < 7; ++g, kk += eight_i) {
+      peakGroup<false>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+    }
     peakGroup<true>(56, kk, vklo, vkhi, prof, bv, sv, bk);
   } else {
-    for (int g = 0; g <= g1; ++g, kk += eight_i) peakGroup<true>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+    for (int g = 0; g <= g1; ++g, kk += eight_i) {
+      peakGroup<true>(8 * g, kk, vklo, vkhi, prof, bv, sv, bk);
+    }
   }
   const V8f bmax = hmax8(bv);
   const float b = bmax[0];
@@ -1638,21 +1648,16 @@ struct LaneRowArgs {
 };
 
 /// v[k] += li * ri[k] - lo * ro[k] for k < n (a multiple of 8): one row in and one out of a
-/// column's vertical sums. kN > 0: n == kN, known at compile time (the loop unrolls; a full
-/// search of 64 disparities, the common case).
-template <int kN>
+/// column's vertical sums, the group count fixed at compile time where byGroups can.
 ES_INLINE void laneRunning(int n, float* __restrict v, V8f li, V8f lo, const float* __restrict ri,
                            const float* __restrict ro) {
-  const int m = kN > 0 ? kN : n;
-  for (int k = 0; k < m; k += 8) store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
-}
-/// h[k] += in[k] - out[k] for k < n (a multiple of 8): the window sums slid by one column; kN as
-/// in laneRunning.
-template <int kN>
-ES_INLINE void laneSlide(int n, float* __restrict h, const float* __restrict in,
-                         const float* __restrict out) {
-  const int m = kN > 0 ? kN : n;
-  for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(in + k) - load8(out + k)));
+  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
+    constexpr int kG = decltype(groups)::value;
+    const int m = kG > 0 ? 8 * kG : n;
+    for (int k = 0; k < m; k += 8) {
+      store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
+    }
+  });
 }
 
 /// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
@@ -1667,11 +1672,7 @@ ES_KERNEL void lanePass1(const LaneRowArgs& a) {
     float* __restrict v = a.vl + static_cast<size_t>(x) * dp + k0;
     if (a.running) {
       const V8f li = splat8(a.l_in[x]), lo = splat8(a.l_out[x]);
-      if (n == 64) {
-        laneRunning<64>(n, v, li, lo, a.r_in + base, a.r_out + base);
-      } else {
-        laneRunning<0>(n, v, li, lo, a.r_in + base, a.r_out + base);
-      }
+      laneRunning(n, v, li, lo, a.r_in + base, a.r_out + base);
     } else {
       const V8f l0 = splat8(a.l_rows[0][x]);
       for (int k = 0; k < n; k += 8) store8(v + k, l0 * load8(a.r_rows[0] + base + k));
@@ -1705,11 +1706,7 @@ ES_KERNEL void lanePass2(const LaneRowArgs& a) {
     if (a.slide && x > r) {
       const float* __restrict in = a.vl + static_cast<size_t>(x + r) * dp;
       const float* __restrict out = a.vl + static_cast<size_t>(x - r - 1) * dp;
-      if (dp == 64) {
-        laneSlide<64>(dp, h, in, out);
-      } else {
-        laneSlide<0>(dp, h, in, out);
-      }
+      addSubGroups(dp, h, in, out);  // the window slid by one column
     }
     const int lo = a.elo[x], hi = a.ehi[x];
     if (lo > hi) continue;
@@ -2138,8 +2135,6 @@ struct DecideArgs {
 /// value outside the active pixels. Columns from x0 + 8 * floor((x1 - x0) / 8) on are left to
 /// the caller.
 ES_KERNEL int decideDense(const DecideArgs& a) {
-  typedef uint8_t V8u8 __attribute__((vector_size(8)));
-  typedef int8_t V8s8 __attribute__((vector_size(8)));
   const V8f vzero = splat8(0.f), vone = splat8(1.f), vninf = splat8(kNegInf);
   const V8f vgmin = splat8(a.gmin), vdelta = splat8(a.delta_min), veps = splat8(a.eps);
   const V8f vfull = splat8(a.min_ncc_full), vnarrow = splat8(a.min_ncc_narrow);
@@ -2240,8 +2235,6 @@ ES_KERNEL int denseActive(int W, int r, const int* __restrict rlo, const int* __
                           const uint8_t* __restrict st, const int* __restrict elo_i,
                           const int* __restrict ehi_i, const float* __restrict gl, float gmin,
                           uint8_t* __restrict code, float* __restrict act) {
-  typedef uint8_t V8u8 __attribute__((vector_size(8)));
-  typedef int8_t V8s8 __attribute__((vector_size(8)));
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
   const V8i vr = V8i{} + r, vend = V8i{} + (W - r), two = V8i{} + 2;
   const V8f vgmin = splat8(gmin), vone = splat8(1.f), vzero = splat8(0.f);
@@ -2310,14 +2303,13 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   uint8_t* code = c.out->code.ptr<uint8_t>(y);
   const float gmin = static_cast<float>(c.mp->gamma_min);
 
-  // Open = requested range, not accepted yet. Dense when most of the row is open (the first
-  // window): then every column's range and statistics are needed and computed row-wide; sparse
-  // rows compute them where needed.
   // Pixel x is open at this level when it lies inside the window's border, has a requested
-  // range and was not accepted with a smaller window. Dense rows test that row-wide (below);
-  // sparse rows keep the open pixels as a list: built from the row at the row's first sparse
-  // level, then filtered from level to level (a row never turns dense again: its open pixels
-  // only get fewer). The first window counts the requested pixels and builds no list.
+  // range and was not accepted with a smaller window. Dense when most of the row is open (the
+  // first window): every column's range and statistics are then needed and computed row-wide,
+  // and openness is tested row-wide too (below). Sparse rows compute them where needed and keep
+  // the open pixels as a list: built from the row at the row's first sparse level, then filtered
+  // from level to level (a row never turns dense again: its open pixels only get fewer). The
+  // first window counts the requested pixels and builds no list.
   std::vector<int>& open = (*c.open_rows)[y];
   int& open_level = (*c.open_level)[y];
   int n_open = 0;
@@ -2379,8 +2371,8 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   // neighbours), left patch with structure. The other open pixels get their code here.
   s.active.clear();
   if (dense) {
-    // Branch-free over the whole row: the effective ranges and structure values
-    // are all at hand. act[x] = 1 marks the active pixels (the dense engines' list).
+    // Branch-free over the whole row: the effective ranges and structure values are all at
+    // hand. act[x] = 1 marks the active pixels (the dense engines' list).
     const int na = denseActive(W, r, rlo, rhi, st, s.elo_i.data(), s.ehi_i.data(),
                                s.maps.gamma_l.data(), gmin, code, s.act.data());
     if (na == 0) return;
