@@ -2418,13 +2418,15 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     return s.best[x] - comp;
   };
   if (dense) {
-    std::fill(s.p1.begin(), s.p1.begin() + W, kNegInf);
-    std::fill(s.p2.begin(), s.p2.begin() + W, kNegInf);
-    std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
-    std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
     if (c.uniform_ranges) {
+      // The lanes engine keeps its own trackers and writes every rb_d (p1, p2, rb_v: unused).
       denseLanesRow(c, s, y);
     } else {
+      // The slices' streaming trackers start empty.
+      std::fill(s.p1.begin(), s.p1.begin() + W, kNegInf);
+      std::fill(s.p2.begin(), s.p2.begin() + W, kNegInf);
+      std::fill(s.rb_v.begin(), s.rb_v.begin() + W, kNegInf);
+      std::fill(s.rb_d.begin(), s.rb_d.begin() + W, 0.f);
       s.pick.resize(W);
       int np = 0;
       for (int x = r; x < W - r; ++x) {

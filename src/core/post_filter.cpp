@@ -269,7 +269,9 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
         }
         // Vertical runs that closed at this row (rare), marked in the block's own rows.
         for (int c = 0; c < cols && any_close; ++c) {
-          for (int i = std::max(y - cl[c], y0); i < std::min(y, y1); ++i) hole.ptr<uint8_t>(i)[c] = 1;
+          for (int i = std::max(y - cl[c], y0); i < std::min(y, y1); ++i) {
+            hole.ptr<uint8_t>(i)[c] = 1;
+          }
         }
       }
       // The fill value: the median of the valid disparities among the 8 neighbours. With an

@@ -495,8 +495,9 @@ int main(int argc, char** argv) {
     std::ofstream json(out_dir + "/results.json");
     json << buf;
     bool ok = static_cast<bool>(json);
-    ok &= cv::imwrite(out_dir + "/coverage.png", labelled(tracker_with.coverage().colorImage(),
-                                                          "longest run without update (0 .. 20+ frames)"));
+    ok &= cv::imwrite(out_dir + "/coverage.png",
+                      labelled(tracker_with.coverage().colorImage(),
+                               "longest run without update (0 .. 20+ frames)"));
     ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
                       labelled(tracker_without.coverage().colorImage(),
                                "no priors: longest run without update"));
@@ -510,7 +511,8 @@ int main(int argc, char** argv) {
       std::cerr << "--out " << out_dir << ": could not write results.json and the pictures\n";
       return 1;
     }
-    std::cout << "written: " << out_dir << "/results.json, coverage.png, coverage_without_priors.png, fused.png\n";
+    std::cout << "written: " << out_dir
+              << "/results.json, coverage.png, coverage_without_priors.png, fused.png\n";
   }
   return 0;
 }

@@ -215,7 +215,9 @@ TEST(SmallHoles, MatchesThePlainRuleOnRandomMapsAcrossRowBlocks) {
         const bool vertical = rng.uniform(0, 2) == 1;
         const int len = rng.uniform(1, 5);
         int y = rng.uniform(0, rows), x = rng.uniform(0, cols);
-        if (vertical && rng.uniform(0, 2) == 1) y = 32 * rng.uniform(1, rows / 32 + 1) - rng.uniform(0, 4);
+        if (vertical && rng.uniform(0, 2) == 1) {
+          y = 32 * rng.uniform(1, rows / 32 + 1) - rng.uniform(0, 4);
+        }
         for (int i = 0; i < len; ++i) {
           const int yy = vertical ? y + i : y, xx = vertical ? x : x + i;
           if (yy >= 0 && yy < rows && xx < cols) d.at<float>(yy, xx) = kNaN;
