@@ -265,6 +265,8 @@ const std::vector<Entry>& table() {
                       &TemporalParams::max_prior_failures));
     t.push_back(field("temporal", "refresh_period_frames", &PP::temporal,
                       &TemporalParams::refresh_period_frames));
+    t.push_back(field("temporal", "full_range_period_frames", &PP::temporal,
+                      &TemporalParams::full_range_period_frames));
     t.push_back(field("temporal", "min_prior_hit_share", &PP::temporal,
                       &TemporalParams::min_prior_hit_share));
     t.push_back(field("temporal", "max_gap_s", &PP::temporal, &TemporalParams::max_gap_s));

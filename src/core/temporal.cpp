@@ -123,6 +123,8 @@ std::string TemporalParams::validate() const {
     return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
   if (refresh_period_frames < 0 || refresh_period_frames > 1000)
     return rangeMessage("refresh_period_frames", "[0, 1000]", refresh_period_frames);
+  if (full_range_period_frames < 1 || full_range_period_frames > 1000)
+    return rangeMessage("full_range_period_frames", "[1, 1000]", full_range_period_frames);
   if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))
     return rangeMessage("min_prior_hit_share", "[0, 1]", min_prior_hit_share);
   if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
@@ -312,7 +314,11 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
   const float r = float(params_.prior_radius_px);
   const int period = params_.refresh_period_frames;
   const int refresh_phase = period > 0 ? int(frame_count_ % period) : -1;
-  enum { kRefresh, kFull, kBright, kEdge, kNarrowed, kWidth, kCounters };
+  const int full_period = params_.full_range_period_frames;
+  const int full_phase = int(frame_count_ % full_period);
+  // Deferred pixels get lo > hi even after the matcher clamps to [min, max].
+  const int16_t none_lo = int16_t(max_disparity + 1), none_hi = int16_t(min_disparity - 1);
+  enum { kRefresh, kFull, kBright, kEdge, kNarrowed, kWidth, kDeferred, kCounters };
   const std::array<int64_t, kCounters> counts = forRowStripes<kCounters>(
       size.height, [&](int y_begin, int y_end, std::array<int64_t, kCounters>& c) {
         // The block grid expanded to full columns once per block row (the rows below read it as an
@@ -353,8 +359,11 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             hi_e = row_hi_e.data();
             jump = edge_jump;
           }
+          // In a row whose stripe does not have its turn, full-range pixels are deferred, except
+          // those near a highlight that have a prior (they would be narrowed but for the light).
+          const bool defer_row = (y / kRefreshStripeRows) % full_period != full_phase;
           const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : zero_row_.data();
-          int row_bright = 0, row_edge = 0, row_narrowed = 0;
+          int row_bright = 0, row_edge = 0, row_narrowed = 0, row_deferred = 0;
           int64_t row_width = 0;
           int x = 0;
 #if CV_SIMD128
@@ -369,7 +378,12 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             const cv::v_int32x4 v_max = cv::v_setall_s32(max_disparity);
             const cv::v_int32x4 v_one = cv::v_setall_s32(1);
             const cv::v_int32x4 v_zero = cv::v_setzero_s32();
-            cv::v_int32x4 n_bright = v_zero, n_edge = v_zero, n_narrowed = v_zero, n_width = v_zero;
+            const cv::v_int32x4 v_none_lo = cv::v_setall_s32(none_lo);
+            const cv::v_int32x4 v_none_hi = cv::v_setall_s32(none_hi);
+            const cv::v_int32x4 v_two = cv::v_setall_s32(2);
+            const cv::v_int32x4 v_defer_row = cv::v_setall_s32(defer_row ? -1 : 0);
+            cv::v_int32x4 n_bright = v_zero, n_edge = v_zero, n_narrowed = v_zero, n_width = v_zero,
+                          n_deferred = v_zero;
             for (; x <= size.width - 4; x += 4) {
               const cv::v_float32x4 lf = cv::v_load(lo_f + x), hf = cv::v_load(hi_f + x);
               const cv::v_float32x4 le = cv::v_load(lo_e + x), he = cv::v_load(hi_e + x);
@@ -377,7 +391,8 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
               // misaligned int pointer, which UBSan rightly reports.)
               const cv::v_uint32x4 b4(bright[x], bright[x + 1], bright[x + 2], bright[x + 3]);
               const cv::v_int32x4 lit = cv::v_reinterpret_as_s32(b4) != v_zero;
-              const cv::v_int32x4 prior = cv::v_reinterpret_as_s32(lf < v_none) & ~lit;
+              const cv::v_int32x4 has = cv::v_reinterpret_as_s32(lf < v_none);
+              const cv::v_int32x4 prior = has & ~lit;
               const cv::v_int32x4 edge = prior & cv::v_reinterpret_as_s32((he - le) > v_jump);
               const cv::v_float32x4 edge_f = cv::v_reinterpret_as_f32(edge);
               const cv::v_float32x4 lo_d = cv::v_select(edge_f, le, lf);
@@ -385,29 +400,34 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
               cv::v_int32x4 a = cv::v_max(v_min, cv::v_floor(lo_d - v_r));
               cv::v_int32x4 b = cv::v_min(v_max, cv::v_ceil(hi_d + v_r));
               const cv::v_int32x4 full = ~prior | (a > b);
-              a = cv::v_select(full, v_min, a);
-              b = cv::v_select(full, v_max, b);
-              const cv::v_int32x4 nar = (a > v_min) | (b < v_max);
+              const cv::v_int32x4 nar = ~full & ((a > v_min) | (b < v_max));
+              const cv::v_int32x4 dfr = full & ~(has & lit) & v_defer_row;
+              a = cv::v_select(dfr, v_none_lo, cv::v_select(full, v_min, a));
+              b = cv::v_select(dfr, v_none_hi, cv::v_select(full, v_max, b));
               cv::v_store_low(lo + x, cv::v_pack(a, a));
               cv::v_store_low(hi + x, cv::v_pack(b, b));
-              const cv::v_int16x8 nar16 = cv::v_pack(nar & v_one, nar & v_one);
+              const cv::v_int32x4 flag = cv::v_select(dfr, v_two, nar & v_one);
+              const cv::v_int16x8 nar16 = cv::v_pack(flag, flag);
               const unsigned nar8 = cv::v_reinterpret_as_u32(cv::v_pack_u(nar16, nar16)).get0();
               std::memcpy(narrowed + x, &nar8, 4);
               n_bright -= lit;
               n_edge -= edge;
               n_narrowed -= nar;
               n_width += (b - a + v_one) & nar;
+              n_deferred -= dfr;
             }
             row_bright += cv::v_reduce_sum(n_bright);
             row_edge += cv::v_reduce_sum(n_edge);
             row_narrowed += cv::v_reduce_sum(n_narrowed);
             row_width += cv::v_reduce_sum(n_width);
+            row_deferred += cv::v_reduce_sum(n_deferred);
           }
 #endif
           for (; x < size.width; ++x) {
             const bool lit = bright[x] != 0;
             // A pixel with a prior of its own neighbourhood, not near a highlight.
-            const bool prior = (lo_f[x] < 0.5f * kNoPriorLo) & !lit;
+            const bool has = lo_f[x] < 0.5f * kNoPriorLo;
+            const bool prior = has & !lit;
             // Near a depth edge in the priors, the span of both sides (the edge may have moved).
             const bool edge = prior & (hi_e[x] - lo_e[x] > jump);
             const float lo_d = edge ? lo_e[x] : lo_f[x];
@@ -417,26 +437,30 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             // No prior, or a prior (sub-pixel) just outside the full range that leaves nothing:
             // search it all. Sentinels give a > b here by construction (lo 1e9, hi -1e9).
             const bool full = !prior | (a > b);
-            a = full ? min_disparity : a;
-            b = full ? max_disparity : b;
+            const bool nar = ((a > min_disparity) | (b < max_disparity)) && !full;
+            const bool dfr = full && !(has && lit) && defer_row;
+            a = dfr ? none_lo : full ? min_disparity : a;
+            b = dfr ? none_hi : full ? max_disparity : b;
             lo[x] = int16_t(a);
             hi[x] = int16_t(b);
-            const bool nar = (a > min_disparity) | (b < max_disparity);
-            narrowed[x] = uint8_t(nar);
+            narrowed[x] = dfr ? 2 : uint8_t(nar);
             row_bright += lit;
             row_edge += edge;
             row_narrowed += nar;
             row_width += nar ? b - a + 1 : 0;
+            row_deferred += dfr;
           }
           c[kBright] += row_bright;
           c[kEdge] += row_edge;
           c[kNarrowed] += row_narrowed;
-          c[kFull] += size.width - row_narrowed;
+          c[kDeferred] += row_deferred;
+          c[kFull] += size.width - row_narrowed - row_deferred;
           c[kWidth] += row_width;
         }
       });
   stats_.refresh_pixels = counts[kRefresh];
   stats_.full_range_pixels = counts[kFull];
+  stats_.deferred_pixels = counts[kDeferred];
   stats_.highlight_pixels = counts[kBright];
   stats_.edge_zone_pixels = counts[kEdge];
   stats_.narrowed_pixels = counts[kNarrowed];
@@ -483,14 +507,16 @@ void TemporalPrior::update(const cv::Mat& disparity) {
             for (; x <= size_.width - 8; x += 8) {
               cv::v_float32x4 in0, in1, ok0, ok1, nar0, nar1;
               const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
-              const cv::v_uint16x8 nar = cv::v_load_expand(narrowed + x) != v_zero;
-              widenMask(nar, &nar0, &nar1);
+              const cv::v_uint16x8 flag = cv::v_load_expand(narrowed + x);
+              const cv::v_uint16x8 nar = flag == v_one;
+              const cv::v_uint16x8 keep = flag != v_zero;  // narrowed or deferred
+              widenMask(keep, &nar0, &nar1);
               const cv::v_float32x4 kept0 = cv::v_select(nar0, cv::v_load(d + x), v_nan);
               const cv::v_float32x4 kept1 = cv::v_select(nar1, cv::v_load(d + x + 4), v_nan);
               cv::v_store(d + x, cv::v_select(ok0, in0, kept0));
               cv::v_store(d + x + 4, cv::v_select(ok1, in1, kept1));
               // Saturating adds: kAgeNone + 1 stays kAgeNone, 255 failures + 1 stay 255 (v_pack).
-              const cv::v_uint16x8 aged = cv::v_select(nar, cv::v_load(age + x) + v_one, v_none);
+              const cv::v_uint16x8 aged = cv::v_select(keep, cv::v_load(age + x) + v_one, v_none);
               cv::v_store(age + x, cv::v_select(ok, v_zero, aged));
               const cv::v_uint16x8 f = cv::v_load_expand(fail + x);
               const cv::v_uint16x8 failed =
@@ -504,12 +530,13 @@ void TemporalPrior::update(const cv::Mat& disparity) {
 #endif
           for (; x < size_.width; ++x) {
             const bool valid = finite(in[x]);
-            const bool was_narrowed = narrowed[x] != 0;
+            const bool was_narrowed = narrowed[x] == 1;
+            const bool keep = narrowed[x] != 0;
             // Invalid after a full-range search: whatever the prior said is not confirmed, so it is
             // dropped (a wrong prior cannot outlive a refresh). Invalid after a narrowed search:
-            // the prior ages and counts a failure.
-            const float kept = was_narrowed ? d[x] : nan;
-            const uint16_t aged = was_narrowed ? saturatingIncrement(age[x]) : kAgeNone;
+            // the prior ages and counts a failure. Not searched (deferred): the prior ages.
+            const float kept = keep ? d[x] : nan;
+            const uint16_t aged = keep ? saturatingIncrement(age[x]) : kAgeNone;
             const uint8_t failed = was_narrowed ? uint8_t(fail[x] + (fail[x] < 255)) : fail[x];
             d[x] = valid ? in[x] : kept;
             age[x] = valid ? uint16_t(0) : aged;
@@ -548,13 +575,13 @@ double TemporalPrior::hitShare(const cv::Mat& disparity, int64_t* judged) const 
       for (; x <= disparity.cols - 8; x += 8) {
         cv::v_float32x4 in0, in1, ok0, ok1;
         const cv::v_uint16x8 ok = finiteMask8(d + x, &in0, &in1, &ok0, &ok1);
-        const cv::v_uint16x8 nar = cv::v_load_expand(narrowed + x) != cv::v_setzero_u16();
+        const cv::v_uint16x8 nar = cv::v_load_expand(narrowed + x) == cv::v_setall_u16(1);
         row_n += countMask(nar);
         row_hits += countMask(nar & ok);
       }
 #endif
       for (; x < disparity.cols; ++x) {
-        const bool nar = narrowed[x] != 0;
+        const bool nar = narrowed[x] == 1;
         row_n += nar;
         row_hits += nar & finite(d[x]);
       }

@@ -326,7 +326,7 @@ int main(int argc, char** argv) {
 
   Timing t_with, t_without, t_sgbm;
   Score s_with, s_without, s_sgbm, s_fused, s_with_narrowed, s_with_full;
-  int64_t narrowed = 0, hits = 0, fallbacks = 0, searched = 0;
+  int64_t narrowed = 0, hits = 0, fallbacks = 0, deferred = 0, searched = 0;
   double width_sum = 0;
   int width_frames = 0;
   endo_stereo::SurgicalFrame frame;
@@ -378,7 +378,8 @@ int main(int argc, char** argv) {
     if (range) {
       // Split the with-priors score by what each pixel searched.
       const cv::Mat full = (range->lo <= pp.matcher.min_disparity) & (range->hi >= pp.matcher.max_disparity);
-      s_with_narrowed.add(res_with.disparity, frame.gt_disparity, nonocc & ~full);
+      const cv::Mat deferred_mask = range->lo > range->hi;  // not searched this frame
+      s_with_narrowed.add(res_with.disparity, frame.gt_disparity, nonocc & ~full & ~deferred_mask);
       s_with_full.add(res_with.disparity, frame.gt_disparity, nonocc & full);
     }
     s_without.add(res_without.disparity, frame.gt_disparity, nonocc);
@@ -389,6 +390,7 @@ int main(int argc, char** argv) {
       narrowed += ps.narrowed_pixels;
       hits += ps.prior_hits;
       fallbacks += ps.fallback_pixels;
+      deferred += ps.deferred_pixels;
       searched += int64_t(l.total());
       width_sum += ps.mean_narrowed_width_px;
       ++width_frames;
@@ -468,6 +470,7 @@ int main(int argc, char** argv) {
                 "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
                 "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
                 "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
+                "  \"prior_deferred_share\": %.4f,\n"
                 "  \"mean_narrowed_width_px\": %.2f,\n"
                 "  \"coverage_with_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f},\n"
                 "  \"coverage_without_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f}\n"
@@ -480,6 +483,7 @@ int main(int argc, char** argv) {
                 (long long)s_without.bad, (long long)s_without.output, s_fused.bad2(), s_fused.density(), s_sgbm.bad2(),
                 s_sgbm.density(), searched ? double(narrowed) / searched : 0.0,
                 narrowed ? double(hits) / narrowed : 0.0, searched ? double(fallbacks) / searched : 0.0,
+                searched ? double(deferred) / searched : 0.0,
                 width_frames ? width_sum / width_frames : 0.0, cov_with.central_share, cov_with.overall_share,
                 cov_with.central_never, cov_without.central_share, cov_without.overall_share,
                 cov_without.central_never);

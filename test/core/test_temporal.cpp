@@ -27,6 +27,7 @@ TemporalParams plainParams() {
   p.prior_edge_zone_px = 0;
   p.min_prior_hit_share = 0.0;
   p.highlight_gray = 0;
+  p.full_range_period_frames = 1;
   return p;
 }
 
@@ -41,6 +42,9 @@ TEST(TemporalParams, ValidateNamesTheField) {
   p = TemporalParams();
   p.max_prior_failures = 0;
   EXPECT_NE(p.validate().find("max_prior_failures"), std::string::npos);
+  p = TemporalParams();
+  p.full_range_period_frames = 0;
+  EXPECT_NE(p.validate().find("full_range_period_frames"), std::string::npos);
   EXPECT_THROW(TemporalPrior{p}, std::invalid_argument);
   EXPECT_THROW(TemporalTracker{p}, std::invalid_argument);
 }
@@ -216,6 +220,64 @@ TEST(TemporalPrior, RefreshStripesTakeTurnsAtTheFullRange) {
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
   EXPECT_EQ(prior.lastDisparity().at<float>(3, 5), 30.0f);
   EXPECT_EQ(prior.priorAge().at<uint16_t>(3, 5), 1);
+}
+
+TEST(TemporalPrior, DeferredFullRangeSearchesTakeTurns) {
+  TemporalParams p = plainParams();
+  p.prior_neighbourhood_px = 0;
+  p.max_prior_failures = 1;
+  p.full_range_period_frames = 4;
+  TemporalPrior prior(p);
+  const cv::Size size(16, 4 * kRefreshStripeRows);
+  SearchRange range;
+  prior.buildRange(size, 0, 63, range);
+  // Left half matched at 30, right half never: the right half has no prior.
+  cv::Mat d = constantDisparity(size, 30.0f);
+  d.colRange(8, 16).setTo(kNaN);
+  prior.update(d);
+  std::vector<int> searched(4, 0);
+  for (int f = 1; f <= 4; ++f) {
+    ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+    EXPECT_EQ(prior.stats().narrowed_pixels, 8 * size.height);
+    EXPECT_EQ(prior.stats().full_range_pixels, 8 * kRefreshStripeRows);
+    EXPECT_EQ(prior.stats().deferred_pixels, 3 * 8 * kRefreshStripeRows);
+    for (int s = 0; s < 4; ++s) {
+      const int y = s * kRefreshStripeRows + 5;
+      EXPECT_EQ(range.lo.at<int16_t>(y, 3), 26);  // a prior: narrowed whatever the stripe
+      EXPECT_EQ(range.hi.at<int16_t>(y, 3), 34);
+      const int lo = range.lo.at<int16_t>(y, 12), hi = range.hi.at<int16_t>(y, 12);
+      if (lo == 0 && hi == 63) {
+        ++searched[s];
+      } else {
+        EXPECT_GT(lo, hi) << "stripe " << s << ": neither searched in full nor deferred";
+      }
+    }
+    prior.update(d);
+  }
+  for (int s = 0; s < 4; ++s) EXPECT_EQ(searched[s], 1) << "stripe " << s;  // once in 4 frames
+
+  // A deferred pixel was not searched: its prior ages but is kept, and no failure is counted.
+  // Pixel (y, 3) fails its narrowed search once (max_prior_failures = 1), so it falls back to the
+  // full range; in a stripe whose turn it is not, it is deferred.
+  const int y = 1 * kRefreshStripeRows + 5;
+  cv::Mat miss = d.clone();
+  miss.at<float>(y, 3) = kNaN;
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  prior.update(miss);
+  EXPECT_EQ(prior.stats().prior_misses, 1);
+  for (int f = 0; f < 4; ++f) {
+    ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+    const bool deferred = range.lo.at<int16_t>(y, 3) > range.hi.at<int16_t>(y, 3);
+    if (!deferred) {
+      EXPECT_EQ(range.lo.at<int16_t>(y, 3), 0);  // its turn: the full range (fallback)
+      break;
+    }
+    const uint16_t age = prior.priorAge().at<uint16_t>(y, 3);
+    prior.update(miss);
+    EXPECT_EQ(prior.lastDisparity().at<float>(y, 3), 30.0f) << "frame " << f;
+    EXPECT_EQ(prior.priorAge().at<uint16_t>(y, 3), age + 1) << "frame " << f;
+    EXPECT_EQ(prior.stats().prior_misses, 0);  // nothing narrowed failed
+  }
 }
 
 TEST(TemporalPrior, EdgeZoneSpansBothSidesOfADepthEdge) {
@@ -543,6 +605,8 @@ TEST(TemporalPrior, RangesShrinkAndHoldTheNextFrameOnAMovingSequence) {
   scene.suggestedDisparityRange(&dmin, &dmax);
   TemporalParams tp;
   tp.refresh_period_frames = 0;  // so that every pixel with a prior is narrowed
+  // and every fallback searches the full range at once (deferral: DeferredFullRangeSearches...)
+  tp.full_range_period_frames = 1;
   TemporalPrior prior(tp);
   SearchRange range;
   SurgicalFrame frame;
