@@ -158,14 +158,15 @@ class TemporalResetDetector {
 /// Counters of the latest frame of a TemporalPrior.
 struct TemporalPriorStats {
   int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
-  int64_t full_range_pixels = 0;  ///< pixels searching the full range (any of the reasons below,
-                                  ///< or no prior)
-  int64_t fallback_pixels = 0;    ///< of those: had a prior but it kept failing
-  int64_t refresh_pixels = 0;     ///< of those: in this frame's refresh stripes
+  int64_t full_range_pixels = 0;  ///< pixels searching the full range this frame (no usable
+                                  ///< prior, a refresh stripe, or near a highlight)
+  int64_t fallback_pixels = 0;    ///< had a prior but it kept failing (full range or deferred)
+  int64_t refresh_pixels = 0;     ///< of the full-range pixels: in this frame's refresh stripes
   int64_t deferred_pixels = 0;    ///< not searched this frame: full range, not their stripe's turn
                                   ///< (full_range_period_frames); not in full_range_pixels
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
-  int64_t highlight_pixels = 0;   ///< full-range pixels near a highlight (left_gray given)
+  int64_t highlight_pixels = 0;   ///< pixels near a highlight (left_gray given): full range or
+                                  ///< deferred
   bool scene_change = false;      ///< all priors dropped this frame: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
