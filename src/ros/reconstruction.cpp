@@ -520,6 +520,7 @@ void Reconstruction::processPair(const Pair& pair) {
   last_density_ = out_.match.stats.density();
   if (out_.rect_quality.valid) last_quality_ = out_.rect_quality;
   last_priors_used_ = out_.priors_used;
+  last_prior_stats_ = out_.prior_stats;
 }
 
 void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out) {
@@ -654,6 +655,14 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("pipeline median (ms)", percentile(pipe, 0.5));
   stat.add("density", last_density_);
   stat.add("priors used", last_priors_used_);
+  {
+    // What the last frame searched: narrowed around priors, the full range, or nothing yet
+    // (deferred: TemporalParams::full_range_period_frames).
+    const TemporalPriorStats& ps = last_prior_stats_;
+    const double n = double(ps.narrowed_pixels + ps.full_range_pixels + ps.deferred_pixels);
+    stat.add("pixels narrowed by priors (share)", n > 0 ? double(ps.narrowed_pixels) / n : 0.0);
+    stat.add("pixels deferred (share)", n > 0 ? double(ps.deferred_pixels) / n : 0.0);
+  }
   stat.add("rectification residual median (px)",
            last_quality_.valid ? last_quality_.median_offset_px : std::nan(""));
   stat.add("rectification residual p90 (px)",

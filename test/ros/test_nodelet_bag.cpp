@@ -122,6 +122,16 @@ TEST(BagPlayback, EveryPairAccountedForAndStampsPreserved) {
   EXPECT_EQ(rejected, 0) << "last error: '"
                          << (kv.count("last error") ? kv.at("last error") : std::string()) << "'";
   EXPECT_GE(processed, 1);
+  // What the last frame searched: shares of the image, so in [0, 1] and adding up to at most 1;
+  // a frame matched with priors narrowed most pixels (the generated scene moves smoothly).
+  const double narrowed = test::numberOr(kv, "pixels narrowed by priors (share)", -1);
+  const double deferred = test::numberOr(kv, "pixels deferred (share)", -1);
+  EXPECT_GE(narrowed, 0.0);
+  EXPECT_GE(deferred, 0.0);
+  EXPECT_LE(narrowed + deferred, 1.0);
+  if (kv.count("priors used") && kv.at("priors used") == "True") EXPECT_GT(narrowed, 0.5);
+  std::printf("[ INFO     ] last frame: priors used %s, narrowed %.3f, deferred %.3f\n",
+              kv.count("priors used") ? kv.at("priors used").c_str() : "?", narrowed, deferred);
 
   // Every processed pair was published, with its input stamp, in order.
   EXPECT_TRUE(waitUntil([&] { return disparities.count() >= static_cast<size_t>(processed); }, 10.0));

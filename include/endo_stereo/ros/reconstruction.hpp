@@ -182,6 +182,7 @@ class Reconstruction {
   double last_density_ = 0.0;
   RectificationQuality last_quality_;
   bool last_priors_used_ = false;
+  TemporalPriorStats last_prior_stats_;  // the last processed frame's search ranges
   std::string last_error_;
   ros::WallTime last_error_time_;
   ReconstructionCounters diag_prev_;
