@@ -2313,6 +2313,12 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   std::vector<int>& open = (*c.open_rows)[y];
   int& open_level = (*c.open_level)[y];
   int n_open = 0;
+  // Above window_max_narrowed_px only pixels with the full range stay open (the first window
+  // is always tried).
+  const int cap_w = c.mp->window_max_narrowed_px;
+  const bool capped = c.level > 0 && cap_w > 0 && c.w > cap_w;
+  const int dmin = c.dmin, dmax = c.dmax;
+  auto mayOpen = [&](int x) { return !capped | ((rlo[x] <= dmin) & (rhi[x] >= dmax)); };
   if (c.level == 0) {
     for (int x = r; x < W - r; ++x) n_open += rlo[x] <= rhi[x];
     (*c.n_req_rows)[y] = n_open;
@@ -2322,7 +2328,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     size_t kept = 0;
     for (const int x : open) {
       open[kept] = x;
-      kept += (st[x] == 0) & (x >= r) & (x < W - r);
+      kept += (st[x] == 0) & (x >= r) & (x < W - r) & mayOpen(x);
     }
     open.resize(kept);
     open_level = c.level;
@@ -2331,12 +2337,13 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     open.resize(W);
     for (int x = r; x < W - r; ++x) {
       open[n_open] = x;
-      n_open += (rlo[x] <= rhi[x]) & (st[x] == 0);
+      n_open += (rlo[x] <= rhi[x]) & (st[x] == 0) & mayOpen(x);
     }
     open.resize(n_open);
   }
   // The engine choice only decides speed: both give the same values.
-  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y];
+  // (The dense engines activate pixels row-wide, without the list: not with the cap.)
+  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y] && !capped;
   if (!dense && c.level > 0) open_level = c.level;  // the list just built or filtered
   if (n_open == 0) return;
   if (dense) {

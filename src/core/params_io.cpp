@@ -173,6 +173,8 @@ const std::vector<Entry>& table() {
     t.push_back(field("matcher", "min_ncc", &PP::matcher, &MatcherParams::min_ncc));
     t.push_back(
         field("matcher", "min_ncc_narrowed", &PP::matcher, &MatcherParams::min_ncc_narrowed));
+    t.push_back(field("matcher", "window_max_narrowed_px", &PP::matcher,
+                      &MatcherParams::window_max_narrowed_px));
     t.push_back(field("matcher", "subpixel", &PP::matcher, &MatcherParams::subpixel));
     t.push_back(field("matcher", "num_threads", &PP::matcher, &MatcherParams::num_threads));
     t.push_back(

@@ -300,11 +300,16 @@ struct Reference {
     code = cv::Mat(H, W, CV_8U, cv::Scalar(kCodeNotSearched));
     cv::Mat done(H, W, CV_8U, cv::Scalar(0));
     for (int level = 0; p.window_min_px + level * p.window_step_px <= p.window_max_px; ++level) {
-      const int r = (p.window_min_px + level * p.window_step_px) / 2;
+      const int w = p.window_min_px + level * p.window_step_px;
+      const int r = w / 2;
       for (int y = 0; y < H; ++y) {
         for (int x = 0; x < W; ++x) {
           int a, b;
           if (done.at<uint8_t>(y, x) || !erange(x, y, r, &a, &b)) continue;
+          const bool narrowed =
+              lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
+          // A narrowed pixel keeps the code of its last window up to window_max_narrowed_px.
+          if (narrowed && p.window_max_narrowed_px > 0 && w > p.window_max_narrowed_px) continue;
           uint8_t& c = code.at<uint8_t>(y, x);
           if (b - a < 2) {
             c = kCodeNoPeak;
@@ -335,8 +340,6 @@ struct Reference {
             c = kCodeRejectStructure;
             continue;
           }
-          const bool narrowed =
-              lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
           const double mn = narrowed ? std::max(p.min_ncc, p.min_ncc_narrowed) : p.min_ncc;
           if (!(s[bi] - second > p.delta_min) || s[bi] < mn) {
             c = kCodeRejectPeakGap;
@@ -475,8 +478,25 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
   p.min_ncc = 0.3;
   p.epsilon_px = 1.0;
   p.edge_disparity_jump_px = 0.0;
-  expectSameAsReference(s, p, &rg, 1);
-  expectSameAsReference(s, p, &rg, 2);
+  // Without the cap on narrowed windows, then with it (windows 5, 9, 13, 17: narrowed pixels
+  // stop after 9, full-range ones do not). The reference applies the cap independently.
+  for (const int cap : {0, 9}) {
+    p.window_max_narrowed_px = cap;
+    expectSameAsReference(s, p, &rg, 1);
+    expectSameAsReference(s, p, &rg, 2);
+    RobustMatcher m(p, noFilter());
+    MatchResult r;
+    m.compute(s.left, s.right, r, &rg);
+    int above_cap = 0;  // every pixel's range here is narrowed (or empty)
+    for (int y = 0; y < s.left.rows; ++y) {
+      for (int x = 0; x < s.left.cols; ++x) above_cap += r.code.at<uint8_t>(y, x) > kCodeAcceptedBase + 1;
+    }
+    if (cap == 0) {
+      EXPECT_GT(above_cap, 0) << "the scene should need windows above 9 px somewhere";
+    } else {
+      EXPECT_EQ(above_cap, 0) << "narrowed pixels accepted with windows above the cap";
+    }
+  }
 }
 
 TEST_F(MatcherTest, SameOutputForOneAndTwoThreads) {
@@ -529,6 +549,7 @@ TEST_F(MatcherTest, ValidateNamesTheBadField) {
       {"min_ncc_narrowed", [](MatcherParams& p) { p.min_ncc_narrowed = -2; }},
       {"num_threads", [](MatcherParams& p) { p.num_threads = -2; }},
       {"edge_window_max_px", [](MatcherParams& p) { p.edge_window_max_px = -1; }},
+      {"window_max_narrowed_px", [](MatcherParams& p) { p.window_max_narrowed_px = 33; }},
       {"edge_disparity_jump_px", [](MatcherParams& p) { p.edge_disparity_jump_px = -1; }},
       {"edge_disparity_jump_above_px",
        [](MatcherParams& p) { p.edge_disparity_jump_above_px = -1; }},

@@ -10,7 +10,8 @@
  *   pixels), and near a depth edge in the priors the span of both sides (a moving instrument);
  * - a pixel whose narrowed search keeps failing falls back to the full range; when most narrowed
  *   searches of a frame fail (a cut) all priors are dropped and the frame can be matched again;
- * - near specular highlights the full range is searched (see highlight_gray);
+ * - optionally, near specular highlights the full range is searched (highlight_gray; off by
+ *   default since the matcher tries only its first window in a narrowed range);
  * - all temporal state is forgotten when time goes back (a looping bag), after a long gap, or when
  *   the image size, the disparity range or the calibration changes.
  * Priors must not weaken the acceptance criteria: the matcher applies the same criteria, only the
@@ -70,8 +71,11 @@ struct TemporalParams {
   /// Specular highlights move with the view, and a narrowed search there loses the competitors
   /// that let the criteria reject a highlight matched to itself: pixels within highlight_margin_px
   /// of a left pixel at least this bright (gray, 0..255) search the full range. Needs
-  /// TemporalFrameInfo::left_gray. In [0, 255]; 0 = off.
-  int highlight_gray = 250;
+  /// TemporalFrameInfo::left_gray. In [0, 255]; 0 = off (the default). It was 250 while a
+  /// narrowed range tried every window size; with matcher.window_max_narrowed_px 7 the rule
+  /// bought no accuracy on the surgical sequence (bad2 0.030% with it, 0.029% without) and its
+  /// full-range searches cost a fifth of a frame's instructions (docs/temporal_results.md).
+  int highlight_gray = 0;
   /// See highlight_gray, px. In [0, 64].
   int highlight_margin_px = 4;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
@@ -90,8 +94,8 @@ struct TemporalParams {
   /// or dropped after max_prior_failures) searches the full range in one frame of this many: each
   /// frame, one in every full_range_period_frames stripes of kRefreshStripeRows rows takes its
   /// turn; elsewhere such pixels are not searched (matcher code "unsearched"), keep whatever prior
-  /// they had (it ages) and count no failure. Pixels near a highlight that have a prior are never
-  /// deferred (they search the full range every frame, see highlight_gray). 1 = every frame
+  /// they had (it ages) and count no failure. With the highlight rule on, pixels near a highlight
+  /// that have a prior are never deferred (they search the full range every frame). 1 = every frame
   /// (METHOD.md section 4 to the letter). Most pixels without a prior fail again (the textureless
   /// instrument, the band at the left border, wet highlights), and a failure at the full range
   /// runs every window size: on the surgical sequence 4 cuts 22% of the matcher's instructions per
