@@ -353,6 +353,9 @@ def listen(args):
             in_span = (max(r["in"].values()) - min(r["in"].values())) if len(ins) > 1 else 0.0
             res = {"frames_in_bag": args.frames, "pairs_in": len(ins), "outputs": len(outs),
                    "dropped_or_lost": len(ins) - len(outs),
+                   # Where in the input the pairs without an output were (0 = the first pair):
+                   # start-up against steady state.
+                   "dropped_indices": [i for i, s in enumerate(ins) if s not in r["out"]],
                    "input_rate_hz": (len(ins) - 1) / in_span if in_span > 0 else None,
                    "output_rate_hz": (len(outs) - 1) / span if span > 0 else None,
                    "output_rate_over_input_span_hz": len(outs) / in_span if in_span > 0 else None,
