@@ -461,12 +461,14 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
   cv::RNG rng(3);
   for (int y = 0; y < s.left.rows; ++y) {
     for (int x = 0; x < s.left.cols; ++x) {
-      // Around the truth with a random offset (some miss it), a random radius, some empty.
+      // Around the truth with a random offset (some miss it), a random radius, some empty, one
+      // in five the full range (so rows mix narrowed and full-range pixels).
       const int g = static_cast<int>(std::lround(s.disparity.at<float>(y, x))) + rng.uniform(-3, 4);
       const int rad = rng.uniform(1, 7);
-      rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(g - rad);
+      const bool full = rng.uniform(0, 5) == 0;
+      rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(full ? 0 : g - rad);
       rg.hi.at<int16_t>(y, x) =
-          static_cast<int16_t>(rng.uniform(0, 20) == 0 ? g - rad - 1 : g + rad);
+          static_cast<int16_t>(full ? 24 : rng.uniform(0, 20) == 0 ? g - rad - 1 : g + rad);
     }
   }
   MatcherParams p = range(0, 24);
@@ -487,14 +489,20 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
     RobustMatcher m(p, noFilter());
     MatchResult r;
     m.compute(s.left, s.right, r, &rg);
-    int above_cap = 0;  // every pixel's range here is narrowed (or empty)
+    // Pixels accepted with a window above 9 px, narrowed and full-range ones apart.
+    int above_narrowed = 0, above_full = 0;
     for (int y = 0; y < s.left.rows; ++y) {
-      for (int x = 0; x < s.left.cols; ++x) above_cap += r.code.at<uint8_t>(y, x) > kCodeAcceptedBase + 1;
+      for (int x = 0; x < s.left.cols; ++x) {
+        if (r.code.at<uint8_t>(y, x) <= kCodeAcceptedBase + 1) continue;
+        const bool full = rg.lo.at<int16_t>(y, x) <= 0 && rg.hi.at<int16_t>(y, x) >= 24;
+        (full ? above_full : above_narrowed) += 1;
+      }
     }
+    EXPECT_GT(above_full, 0) << "the scene should need windows above 9 px somewhere";
     if (cap == 0) {
-      EXPECT_GT(above_cap, 0) << "the scene should need windows above 9 px somewhere";
+      EXPECT_GT(above_narrowed, 0) << "the scene should need windows above 9 px somewhere";
     } else {
-      EXPECT_EQ(above_cap, 0) << "narrowed pixels accepted with windows above the cap";
+      EXPECT_EQ(above_narrowed, 0) << "narrowed pixels accepted with windows above the cap";
     }
   }
 }
