@@ -2314,9 +2314,9 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   int& open_level = (*c.open_level)[y];
   int n_open = 0;
   // Above window_max_narrowed_px only pixels with the full range stay open (the first window
-  // is always tried).
+  // is always tried; without per-pixel ranges no pixel is narrowed).
   const int cap_w = c.mp->window_max_narrowed_px;
-  const bool capped = c.level > 0 && cap_w > 0 && c.w > cap_w;
+  const bool capped = !c.uniform_ranges && c.level > 0 && cap_w > 0 && c.w > cap_w;
   const int dmin = c.dmin, dmax = c.dmax;
   auto mayOpen = [&](int x) { return !capped | ((rlo[x] <= dmin) & (rhi[x] >= dmax)); };
   if (c.level == 0) {
