@@ -73,10 +73,10 @@ struct MatcherParams {
   double min_ncc_narrowed = 0.7;
   /// Largest window width tried for a pixel whose per-pixel search range is narrowed (as for
   /// min_ncc_narrowed), px, in [0, 32]; 0 = window_max_px; the first window (window_min_px) is
-  /// always tried (ours). A narrowed pixel that the small windows cannot match lies mostly where
-  /// a larger window fattens (depth edges, highlights): on the surgical frame with +-4 px around
-  /// the truth, the pixels accepted with windows of 11 px and more had a bad2 of 4-10% against
-  /// 0.04% at 7 px (docs/matcher_design.md). The temporal priors send a pixel that keeps failing
+  /// always tried (ours). On the surgical frame with +-4 px around the truth, the narrowed pixels
+  /// accepted with windows of 11 px and more had a bad2 of 4-10% against 0.04% at 7 px
+  /// (docs/matcher_design.md): a larger window fattens across depth edges, and a narrowed range
+  /// has lost the competitors that would expose a wrong peak. The temporal priors send a pixel that keeps failing
   /// back to the full range, where every window is tried.
   int window_max_narrowed_px = 7;
   /// Refine accepted disparities with a parabola through the NCC peak.
