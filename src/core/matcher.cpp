@@ -2318,7 +2318,9 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   const int cap_w = c.mp->window_max_narrowed_px;
   const bool capped = !c.uniform_ranges && c.level > 0 && cap_w > 0 && c.w > cap_w;
   const int dmin = c.dmin, dmax = c.dmax;
-  auto mayOpen = [&](int x) { return !capped | ((rlo[x] <= dmin) & (rhi[x] >= dmax)); };
+  // A per-pixel range narrower than [dmin, dmax] (the test behind min_ncc_narrowed too).
+  auto narrowed = [&](int x) { return (rlo[x] > dmin) | (rhi[x] < dmax); };
+  auto mayOpen = [&](int x) { return !capped | !narrowed(x); };
   if (c.level == 0) {
     for (int x = r; x < W - r; ++x) n_open += rlo[x] <= rhi[x];
     (*c.n_req_rows)[y] = n_open;
@@ -2415,9 +2417,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
   const float min_ncc_narrow = std::max(min_ncc_full, static_cast<float>(c.mp->min_ncc_narrowed));
   // A pixel whose per-pixel range narrows the search has lost the competitors outside it, so its
   // best peak must be stronger (min_ncc_narrowed): a prior must not weaken the criteria.
-  auto minNcc = [&](int x) {
-    return (rlo[x] > c.dmin || rhi[x] < c.dmax) ? min_ncc_narrow : min_ncc_full;
-  };
+  auto minNcc = [&](int x) { return narrowed(x) ? min_ncc_narrow : min_ncc_full; };
   // The discrimination test: best peak above min_ncc and clear of the second by more than
   // delta_min (a single peak is measured against the lowest NCC, -1).
   auto peakGap = [&](int x) {

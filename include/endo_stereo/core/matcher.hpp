@@ -76,8 +76,8 @@ struct MatcherParams {
   /// always tried (ours). On the surgical frame with +-4 px around the truth, the narrowed pixels
   /// accepted with windows of 11 px and more had a bad2 of 4-10% against 0.04% at 7 px
   /// (docs/matcher_design.md): a larger window fattens across depth edges, and a narrowed range
-  /// has lost the competitors that would expose a wrong peak. The temporal priors send a pixel that keeps failing
-  /// back to the full range, where every window is tried.
+  /// has lost the competitors that would expose a wrong peak. The temporal priors send a pixel
+  /// that keeps failing back to the full range, where every window is tried.
   int window_max_narrowed_px = 7;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
