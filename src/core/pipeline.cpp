@@ -61,7 +61,9 @@ std::string PipelineParams::validate() const {
 
 struct Pipeline::Impl {
   Impl(const PipelineParams& p)
-      : matcher(p.matcher, p.filter), rectifier(p.rectify), temporal(p.temporal) {}
+      : matcher(p.matcher, p.filter), rectifier(p.rectify), temporal(p.temporal) {
+    rectifier.setQualityDisparityRange(p.matcher.min_disparity, p.matcher.max_disparity);
+  }
 
   RobustMatcher matcher;
   StereoRectifier rectifier;
@@ -88,6 +90,8 @@ void Pipeline::setParams(const PipelineParams& params) {
   // All checks passed above, so none of the setters below can throw and leave a mixed state.
   impl_->matcher.setParams(params.matcher, params.filter);
   impl_->rectifier.setParams(params.rectify);
+  impl_->rectifier.setQualityDisparityRange(params.matcher.min_disparity,
+                                            params.matcher.max_disparity);
   impl_->temporal.setParams(params.temporal);
   const bool rescale = params.preprocess.factorX() != params_.preprocess.factorX() ||
                        params.preprocess.factorY() != params_.preprocess.factorY() ||

@@ -12,6 +12,12 @@
 
 #include "uncalibrated_rectification.hpp"
 
+#ifdef __linux__
+#include <sys/resource.h>
+#include <sys/syscall.h>
+#include <unistd.h>
+#endif
+
 namespace endo_stereo {
 
 // ------------------------------------------------------------------------------ names, params
@@ -124,6 +130,202 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
   for (size_t i = 0; i < inl.size(); ++i) dy[i] = std::abs(inl.left[i].y - inl.right[i].y);
   detail::offsetStatistics(dy, &q.median_offset_px, &q.p90_offset_px);
   q.num_matches = int(inl.size());
+  q.valid = true;
+  return q;
+}
+
+// Patch measure (calibrated and pass-through modes). Plain loops only, no cv::parallel_for_ and
+// no OpenCV call that may use it: OpenCV's parallel_for_ runs serially whenever another thread
+// is inside one (a process-wide flag), so a measurement on a background thread that used it
+// would turn the matcher's parallel loops serial for as long as it ran.
+namespace {
+
+// The background measurement is bookkeeping: it should take only CPU time the frames leave
+// idle. Linux: niceness 19 for the calling thread (a thread may always lower its own priority).
+void lowerThisThreadsPriority() {
+#ifdef __linux__
+  (void)setpriority(PRIO_PROCESS, static_cast<id_t>(syscall(SYS_gettid)), 19);
+#endif
+}
+
+constexpr int kPatchHalf = 5;        // 11 x 11 patches
+constexpr int kPatchMaxDy = 8;       // vertical search +-8 px; larger offsets read as 8
+constexpr float kPatchMinNcc = 0.8f;  // least ZNCC of a used match
+constexpr float kPatchMinGap = 0.05f;  // over the best match 3 or more disparities away
+constexpr double kPatchMinGradSq = 9.0;  // least mean squared gradient, both directions
+
+}  // namespace
+
+RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
+                                                const cv::Mat& right_gray, int min_disparity,
+                                                int max_disparity, int max_patches) {
+  RectificationQuality q;
+  if (left_gray.type() != CV_8UC1 || right_gray.type() != CV_8UC1 ||
+      left_gray.size() != right_gray.size() || min_disparity > max_disparity) {
+    q.message = "row alignment: needs two CV_8UC1 images of one size and min <= max disparity";
+    return q;
+  }
+  const int W = left_gray.cols, H = left_gray.rows;
+  const int h = kPatchHalf, V = kPatchMaxDy, n = (2 * h + 1) * (2 * h + 1);
+  const int y_lo = h + V, y_hi = H - 1 - h - V;  // patch centres: the search stays inside
+  const int x_lo = h + 1, x_hi = W - 2 - h;
+  if (y_lo > y_hi || x_lo > x_hi) {
+    q.message = "row alignment: images too small to measure";
+    return q;
+  }
+  // Structure of every candidate centre: the patch sums of the squared central differences in x
+  // and in y (column sums, then a running sum along the row). A patch is usable when both are
+  // large: texture in y fixes the vertical offset, texture in x the disparity.
+  const int cw = W - 2;  // columns 1 .. W - 2 have central differences
+  std::vector<double> gx_col(size_t(cw), 0.0), gy_col(size_t(cw), 0.0);
+  cv::Mat score(H, W, CV_32F, cv::Scalar(0.f));
+  auto grad = [&](int y, int x, double* gx, double* gy) {
+    const uint8_t* r0 = left_gray.ptr<uint8_t>(y);
+    const double dx = double(r0[x + 1]) - double(r0[x - 1]);
+    const double dy = double(left_gray.ptr<uint8_t>(y + 1)[x]) -
+                      double(left_gray.ptr<uint8_t>(y - 1)[x]);
+    *gx = dx * dx;
+    *gy = dy * dy;
+  };
+  for (int y = y_lo - h; y <= y_hi + h; ++y) {
+    for (int x = 1; x < W - 1; ++x) {
+      double gx, gy;
+      grad(y, x, &gx, &gy);
+      gx_col[size_t(x - 1)] += gx;
+      gy_col[size_t(x - 1)] += gy;
+    }
+    const int yo = y - 2 * h - 1;  // the row that leaves the column window
+    if (yo >= y_lo - h) {
+      for (int x = 1; x < W - 1; ++x) {
+        double gx, gy;
+        grad(yo, x, &gx, &gy);
+        gx_col[size_t(x - 1)] -= gx;
+        gy_col[size_t(x - 1)] -= gy;
+      }
+    }
+    const int yc = y - h;  // the centre row whose window is complete
+    if (yc < y_lo) continue;
+    float* sc = score.ptr<float>(yc);
+    double sx = 0.0, sy = 0.0;
+    for (int i = 0; i < 2 * h + 1; ++i) {
+      sx += gx_col[size_t(i)];
+      sy += gy_col[size_t(i)];
+    }
+    for (int x = 1 + h;; ++x) {  // window columns x - h .. x + h (difference columns 1 .. W - 2)
+      sc[x] = float(std::min(sx, sy) / n);
+      if (x + h + 1 > W - 2) break;
+      sx += gx_col[size_t(x + h)] - gx_col[size_t(x - h - 1)];
+      sy += gy_col[size_t(x + h)] - gy_col[size_t(x - h - 1)];
+    }
+  }
+
+  // One patch per cell of a grid: the best-structured centre of the cell.
+  const int target = max_patches > 0 ? max_patches : (W * H) / (16 * 16);
+  const int cell = std::max(16, int(std::sqrt(double(W) * H / std::max(1, target))));
+  std::vector<double> offsets;
+  int textured = 0;  // cells with a textured patch
+  std::vector<float> lp(size_t(n), 0.f);
+  std::vector<float> ncc;
+  for (int cy = y_lo; cy <= y_hi; cy += cell) {
+    for (int cx = x_lo; cx <= x_hi; cx += cell) {
+      int bx = -1, by = -1;
+      float best_score = float(kPatchMinGradSq);
+      for (int y = cy; y <= std::min(y_hi, cy + cell - 1); ++y) {
+        const float* sc = score.ptr<float>(y);
+        for (int x = cx; x <= std::min(x_hi, cx + cell - 1); ++x) {
+          if (sc[x] > best_score) {
+            best_score = sc[x];
+            bx = x;
+            by = y;
+          }
+        }
+      }
+      if (bx < 0) continue;
+      ++textured;
+      // Disparities whose right patch lies inside the image.
+      const int d_lo = std::max(min_disparity, bx - (W - 1 - h));
+      const int d_hi = std::min(max_disparity, bx - h);
+      const int nd = d_hi - d_lo + 1;
+      if (nd < 3) continue;
+      // The left patch, zero-mean, and its norm.
+      double lsum = 0.0;
+      for (int dy = -h; dy <= h; ++dy) {
+        const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
+        for (int dx = -h; dx <= h; ++dx) lsum += r[bx + dx];
+      }
+      const float lmean = float(lsum / n);
+      double lnorm2 = 0.0;
+      for (int dy = -h, k = 0; dy <= h; ++dy) {
+        const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
+        for (int dx = -h; dx <= h; ++dx, ++k) {
+          lp[size_t(k)] = float(r[bx + dx]) - lmean;
+          lnorm2 += double(lp[size_t(k)]) * lp[size_t(k)];
+        }
+      }
+      if (!(lnorm2 > 0.0)) continue;
+      // ZNCC over every vertical offset and disparity.
+      ncc.assign(size_t((2 * V + 1) * nd), -1.f);
+      for (int v = -V; v <= V; ++v) {
+        for (int d = d_lo; d <= d_hi; ++d) {
+          const int rx = bx - d, ry = by + v;
+          int rs = 0, rs2 = 0;  // exact: at most 121 * 255^2
+          float cross = 0.f;
+          for (int dy = -h, k = 0; dy <= h; ++dy) {
+            const uint8_t* r = right_gray.ptr<uint8_t>(ry + dy) + rx;
+            for (int dx = -h; dx <= h; ++dx, ++k) {
+              const int a = r[dx];
+              rs += a;
+              rs2 += a * a;
+              cross += lp[size_t(k)] * float(a);
+            }
+          }
+          const double var = double(rs2) - double(rs) * rs / n;
+          ncc[size_t((v + V) * nd + (d - d_lo))] =
+              var > 0.0 ? float(cross / std::sqrt(lnorm2 * var)) : -1.f;
+        }
+      }
+      int bv = 0, bd = 0;
+      float best = -2.f;
+      for (int v = 0; v < 2 * V + 1; ++v) {
+        for (int d = 0; d < nd; ++d) {
+          if (ncc[size_t(v * nd + d)] > best) {
+            best = ncc[size_t(v * nd + d)];
+            bv = v;
+            bd = d;
+          }
+        }
+      }
+      float other = -1.f;  // the best match 3 or more disparities away (any offset)
+      for (int v = 0; v < 2 * V + 1; ++v) {
+        for (int d = 0; d < nd; ++d) {
+          if (std::abs(d - bd) >= 3) other = std::max(other, ncc[size_t(v * nd + d)]);
+        }
+      }
+      if (best < kPatchMinNcc || best - other < kPatchMinGap) continue;
+      if (bd == 0 || bd == nd - 1) continue;  // the disparity range cuts the peak
+      double off = double(bv - V);
+      if (bv > 0 && bv < 2 * V) {
+        const double a = ncc[size_t((bv - 1) * nd + bd)], b = best,
+                     c = ncc[size_t((bv + 1) * nd + bd)];
+        const double den = a - 2.0 * b + c;
+        if (den < 0.0) off += std::clamp(0.5 * (a - c) / den, -0.5, 0.5);
+      }
+      offsets.push_back(std::abs(off));
+    }
+  }
+  if (offsets.size() < 8) {
+    std::ostringstream m;
+    m << "too few reliable patch matches to measure the rectification (" << offsets.size()
+      << " of " << textured << " textured patches";
+    if (textured >= 32) {
+      m << "; rows misaligned by more than " << kPatchMaxDy << " px, or views that differ?";
+    }
+    m << ")";
+    q.message = m.str();
+    return q;
+  }
+  q.num_matches = int(offsets.size());
+  detail::offsetStatistics(offsets, &q.median_offset_px, &q.p90_offset_px);
   q.valid = true;
   return q;
 }
@@ -571,23 +773,30 @@ struct StereoRectifier::Impl {
 
   // setAsyncQuality(): one measurement at a time on a background thread.
   bool async_quality = false;
+  // setQualityDisparityRange().
+  bool quality_range_set = false;
+  int quality_dmin = 0, quality_dmax = 0;
   std::future<RectificationQuality> pending_quality;
   int64_t pending_frame = 0;
 
   // Calibrated / pass-through: measure the rectified pair now, or start a background measurement.
   void measureQuality(const cv::Mat& left_rect, const cv::Mat& right_rect) {
+    // The disparity range of the search: the caller's (the pipeline passes the matcher's), else
+    // 0 .. a quarter of the width.
+    const int dmin = quality_range_set ? quality_dmin : 0;
+    const int dmax = quality_range_set ? quality_dmax : left_rect.cols / 4;
     if (!async_quality) {
-      recordQuality(measureRowAlignment(left_rect, right_rect, params.quality_max_features,
-                                        params.ratio_test, params.ransac_threshold_px));
+      recordQuality(
+          measureRowAlignmentPatches(left_rect, right_rect, dmin, dmax, params.quality_max_features));
       return;
     }
     if (pending_quality.valid()) return;  // the previous one still runs: skip this one
     pending_frame = frame_index;
-    pending_quality = std::async(
-        std::launch::async, [l = left_rect.clone(), r = right_rect.clone(),
-                             n = params.quality_max_features, ratio = params.ratio_test,
-                             threshold = params.ransac_threshold_px] {
-          return measureRowAlignment(l, r, n, ratio, threshold);
+    pending_quality =
+        std::async(std::launch::async, [l = left_rect.clone(), r = right_rect.clone(), dmin, dmax,
+                                        n = params.quality_max_features] {
+          lowerThisThreadsPriority();
+          return measureRowAlignmentPatches(l, r, dmin, dmax, n);
         });
   }
 
@@ -886,6 +1095,12 @@ bool StereoRectifier::fundamentalMatrix(cv::Matx33d* F) const {
   if (!impl_->have_uncal) return false;
   *F = impl_->F;
   return true;
+}
+
+void StereoRectifier::setQualityDisparityRange(int min_disparity, int max_disparity) {
+  impl_->quality_range_set = min_disparity <= max_disparity;
+  impl_->quality_dmin = min_disparity;
+  impl_->quality_dmax = max_disparity;
 }
 
 void StereoRectifier::setAsyncQuality(bool async) {

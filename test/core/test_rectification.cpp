@@ -270,6 +270,43 @@ TEST_F(RectifyTest, QualityFlagsAWrongCalibration) {
   EXPECT_NE(qb.message.find("exceeds"), std::string::npos) << qb.message;
 }
 
+// The patch measure of the quality figure on a pair with a known vertical offset: a smoothed
+// random texture, the right view shifted 20 px left (disparity 20) and dy px down, sub-pixel.
+TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
+  cv::Mat noise(240, 320, CV_32F), tex;
+  cv::RNG rng(5);
+  rng.fill(noise, cv::RNG::UNIFORM, 0.0, 255.0);
+  cv::GaussianBlur(noise, tex, cv::Size(0, 0), 1.2);
+  cv::normalize(tex, tex, 20, 235, cv::NORM_MINMAX);
+  cv::Mat left;
+  tex.convertTo(left, CV_8U);
+  for (const double dy : {0.0, 0.4, 1.5, 3.25, 7.0}) {
+    const cv::Matx23d shift(1, 0, -20, 0, 1, dy);  // right(x, y) = left(x + 20, y - dy)
+    cv::Mat right;
+    cv::warpAffine(left, right, shift, left.size(), cv::INTER_CUBIC, cv::BORDER_REFLECT);
+    const RectificationQuality q = measureRowAlignmentPatches(left, right, 0, 40, 300);
+    std::printf("[ measure  ] patch measure, offset %.2f px: median %.3f p90 %.3f px (%d)\n", dy,
+                q.median_offset_px, q.p90_offset_px, q.num_matches);
+    ASSERT_TRUE(q.valid) << q.message;
+    EXPECT_GE(q.num_matches, 100);
+    EXPECT_NEAR(q.median_offset_px, dy, 0.15);
+    // The disparity range must hold the match: [25, 40] cuts off disparity 20.
+    EXPECT_FALSE(measureRowAlignmentPatches(left, right, 25, 40, 300).valid);
+  }
+  // Beyond the +-8 px search: no reliable match, and the message says why.
+  cv::Mat far;
+  cv::warpAffine(left, far, cv::Matx23d(1, 0, -20, 0, 1, 14.0), left.size(), cv::INTER_CUBIC,
+                 cv::BORDER_REFLECT);
+  const RectificationQuality qf = measureRowAlignmentPatches(left, far, 0, 40, 300);
+  EXPECT_FALSE(qf.valid);
+  EXPECT_NE(qf.message.find("8 px"), std::string::npos) << qf.message;
+  // No texture: nothing to measure.
+  const cv::Mat flat(240, 320, CV_8U, cv::Scalar(120));
+  const RectificationQuality qt = measureRowAlignmentPatches(flat, flat, 0, 40, 300);
+  EXPECT_FALSE(qt.valid);
+  EXPECT_EQ(qt.num_matches, 0);
+}
+
 TEST_F(RectifyTest, MapsAreCachedUntilTheCalibrationChanges) {
   const SyntheticRig rig = distortedVergedRig();
   RectifyParams rp;

@@ -129,8 +129,9 @@ struct RectifyParams {
   int quality_stride = 30;
   /// Warning threshold on the median vertical offset, px, > 0.
   double quality_warn_px = 1.0;
-  /// Most SIFT features per image for the quality figure, >= 0 (0 = unlimited).
-  int quality_max_features = 1000;
+  /// Calibrated and pass-through modes: most patches of the quality figure, >= 0 (0 = one per
+  /// 16 x 16 px; measureRowAlignmentPatches). Uncalibrated mode uses sift_features.
+  int quality_max_features = 300;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
   std::string validate() const;
@@ -257,15 +258,20 @@ class StereoRectifier {
   void reset();
 
   /**
-   * Calibrated and pass-through modes: measure the quality (a SIFT pass, hundreds of ms at
-   * 960x540) on a background thread instead of inside rectify() (default false: inside). The
-   * rectified images do not depend on the measurement in these modes, only quality() does: it
-   * then reports the measurement of an earlier frame (frame_index says which) once it is done,
-   * and a stride's measurement is skipped while the previous one still runs. A live caller (the
-   * nodelet) uses this so that one frame in quality_stride does not take a SIFT pass longer.
-   * Uncalibrated mode always measures inline (the measurement decides re-estimation there).
+   * Calibrated and pass-through modes: measure the quality (measureRowAlignmentPatches, some
+   * tens of ms at 960x540) on a background thread at the lowest priority instead of inside
+   * rectify() (default false: inside). The rectified images do not depend on the measurement in
+   * these modes, only quality() does: it then reports the measurement of an earlier frame
+   * (frame_index says which) once it is done, and a stride's measurement is skipped while the
+   * previous one still runs. A live caller (the nodelet) uses this so that one frame in
+   * quality_stride does not take longer. Uncalibrated mode always measures inline, with SIFT
+   * (the measurement decides re-estimation there).
    */
   void setAsyncQuality(bool async);
+
+  /// Calibrated and pass-through modes: the disparity range the quality measurement searches
+  /// (the pipeline passes the matcher's). Until set (or with min > max): 0 .. width / 4.
+  void setQualityDisparityRange(int min_disparity, int max_disparity);
 
  private:
   struct Impl;
@@ -281,5 +287,21 @@ class StereoRectifier {
 RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat& right_gray,
                                          int max_features, double ratio_test,
                                          double ransac_threshold_px);
+
+/**
+ * Measure the vertical offset between two row-aligned CV_8UC1 images without features: on a grid
+ * of about max_patches cells (0: one per 16 x 16 px), the left 11 x 11 patch with the most
+ * texture in both directions is searched in the right image over the disparities
+ * [min_disparity, max_disparity] and vertical offsets of +-8 px (ZNCC); a match counts when its
+ * ZNCC is at least 0.8, 0.05 above the best match 3 or more disparities away, and not cut by the
+ * disparity range. Its vertical offset is refined to sub-pixel by a parabola; offsets beyond 8
+ * px read as 8 (still far above any warning level). Fills valid/median/p90/num_matches (valid
+ * needs 8 matches). Uses no cv::parallel_for_ (safe on a background thread: OpenCV runs
+ * parallel_for_ serially while another thread is inside one). Calibrated and pass-through modes
+ * measure with this; uncalibrated mode uses its SIFT matches.
+ */
+RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
+                                                const cv::Mat& right_gray, int min_disparity,
+                                                int max_disparity, int max_patches);
 
 }  // namespace endo_stereo
