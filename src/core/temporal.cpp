@@ -206,6 +206,19 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
 
   const int max_failures = params_.max_prior_failures;
   const int max_age = params_.max_prior_age_frames;
+  // The edge zone (wide: 33 x 33 by default) is a min / max filter over kEdgeBlock^2 blocks first
+  // (below, with the first pass: a stripe holds whole block rows), then over the blocks within
+  // ceil(e / kEdgeBlock) blocks. A pixel's zone then covers at least e px around it (up to
+  // e + 2 * kEdgeBlock - 1), at a fraction of a full-resolution filter's cost.
+  const int e = params_.prior_edge_zone_px;
+  const bool edge_zone = e > params_.prior_neighbourhood_px;
+  static_assert(kStripeRows % kEdgeBlock == 0, "a stripe must hold whole block rows");
+  const cv::Size blocks((size.width + kEdgeBlock - 1) / kEdgeBlock,
+                        (size.height + kEdgeBlock - 1) / kEdgeBlock);
+  if (edge_zone) {
+    lo_e_.create(blocks, CV_32FC1);
+    hi_e_.create(blocks, CV_32FC1);
+  }
   const std::array<int64_t, 2> pass1 =
       forRowStripes<2>(size.height, [&](int y_begin, int y_end, std::array<int64_t, 2>& c) {
         for (int y = y_begin; y < y_end; ++y) {
@@ -227,6 +240,37 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
           // A pixel with a fresh prior that was dropped for failing: it falls back.
           c[1] += row_fresh - row_usable;
         }
+        if (!edge_zone) return;
+        // Block min / max of this stripe's block rows: vertical over the block's rows into one
+        // row, then horizontal over the block's columns.
+        std::vector<float> col_lo(size_t(size.width)), col_hi(size_t(size.width));
+        for (int y0 = y_begin; y0 < y_end; y0 += kEdgeBlock) {
+          const int y1 = std::min(y_end, y0 + kEdgeBlock);
+          float* clo = col_lo.data();
+          float* chi = col_hi.data();
+          std::copy_n(lo_f_.ptr<float>(y0), size.width, clo);
+          std::copy_n(hi_f_.ptr<float>(y0), size.width, chi);
+          for (int y = y0 + 1; y < y1; ++y) {
+            const float* lo = lo_f_.ptr<float>(y);
+            const float* hi = hi_f_.ptr<float>(y);
+            for (int x = 0; x < size.width; ++x) {
+              clo[x] = std::min(clo[x], lo[x]);
+              chi[x] = std::max(chi[x], hi[x]);
+            }
+          }
+          float* blo = lo_e_.ptr<float>(y0 / kEdgeBlock);
+          float* bhi = hi_e_.ptr<float>(y0 / kEdgeBlock);
+          for (int bx = 0; bx < blocks.width; ++bx) {
+            const int x0 = bx * kEdgeBlock, x1 = std::min(size.width, x0 + kEdgeBlock);
+            float mn = clo[x0], mx = chi[x0];
+            for (int x = x0 + 1; x < x1; ++x) {
+              mn = std::min(mn, clo[x]);
+              mx = std::max(mx, chi[x]);
+            }
+            blo[bx] = mn;
+            bhi[bx] = mx;
+          }
+        }
       });
   const int64_t usable = pass1[0];
   stats_.fallback_pixels = pass1[1];
@@ -240,46 +284,7 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
 
   // Min / max filters spread each prior over a neighbourhood; the default border values of
   // erode / dilate (+inf / -inf) leave image borders neutral.
-  const int e = params_.prior_edge_zone_px;
-  const bool edge_zone = e > params_.prior_neighbourhood_px;
   if (edge_zone) {
-    // The edge zone is wide (33 x 33 by default): min / max over kEdgeBlock^2 blocks first, then
-    // over the blocks within ceil(e / kEdgeBlock) blocks. A pixel's zone then covers at least e px
-    // around it (up to e + 2 * kEdgeBlock - 1), at a fraction of a full-resolution filter's cost.
-    const cv::Size blocks((size.width + kEdgeBlock - 1) / kEdgeBlock,
-                          (size.height + kEdgeBlock - 1) / kEdgeBlock);
-    lo_e_.create(blocks, CV_32FC1);
-    hi_e_.create(blocks, CV_32FC1);
-    // Vertical min / max over the block's rows into one row, then horizontal over the columns.
-    col_lo_.resize(size.width);
-    col_hi_.resize(size.width);
-    for (int by = 0; by < blocks.height; ++by) {
-      const int y0 = by * kEdgeBlock, y1 = std::min(size.height, y0 + kEdgeBlock);
-      float* clo = col_lo_.data();
-      float* chi = col_hi_.data();
-      std::copy_n(lo_f_.ptr<float>(y0), size.width, clo);
-      std::copy_n(hi_f_.ptr<float>(y0), size.width, chi);
-      for (int y = y0 + 1; y < y1; ++y) {
-        const float* lo = lo_f_.ptr<float>(y);
-        const float* hi = hi_f_.ptr<float>(y);
-        for (int x = 0; x < size.width; ++x) {
-          clo[x] = std::min(clo[x], lo[x]);
-          chi[x] = std::max(chi[x], hi[x]);
-        }
-      }
-      float* blo = lo_e_.ptr<float>(by);
-      float* bhi = hi_e_.ptr<float>(by);
-      for (int bx = 0; bx < blocks.width; ++bx) {
-        const int x0 = bx * kEdgeBlock, x1 = std::min(size.width, x0 + kEdgeBlock);
-        float mn = clo[x0], mx = chi[x0];
-        for (int x = x0 + 1; x < x1; ++x) {
-          mn = std::min(mn, clo[x]);
-          mx = std::max(mx, chi[x]);
-        }
-        blo[bx] = mn;
-        bhi[bx] = mx;
-      }
-    }
     const int eb = (e + kEdgeBlock - 1) / kEdgeBlock;
     const cv::Mat kernel =
         cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * eb + 1, 2 * eb + 1));

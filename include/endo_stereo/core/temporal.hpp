@@ -247,7 +247,6 @@ class TemporalPrior {
   cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
   cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
   cv::Mat bright_;          // scratch: near-highlight pixels
-  std::vector<float> col_lo_, col_hi_;      // scratch: one block row's column-wise min / max
   std::vector<uint8_t> zero_row_;           // scratch: "no highlight" row when none are given
   TemporalPriorStats stats_;
 };
