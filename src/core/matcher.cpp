@@ -2227,6 +2227,39 @@ ES_KERNEL void denseRanges(int W, int r, const int* __restrict rlo, const int* _
   }
 }
 
+/// The open pixels of a row at its first sparse window size, in column order into out (returns
+/// how many): columns of [x0, x1) with a requested range (lo <= hi), not accepted yet (st == 0)
+/// and, when capped (window_max_narrowed_px), the full range [dmin, dmax]. Eight columns at a
+/// time; a group without an open pixel is skipped (with priors most pixels are narrowed).
+ES_KERNEL int openColumns(int x0, int x1, const int* __restrict rlo, const int* __restrict rhi,
+                          const uint8_t* __restrict st, bool capped, int dmin, int dmax,
+                          int* __restrict out) {
+  using namespace simd;
+  const V8i vmin = {dmin, dmin, dmin, dmin, dmin, dmin, dmin, dmin};
+  const V8i vmax = {dmax, dmax, dmax, dmax, dmax, dmax, dmax, dmax};
+  const V8i vcap = capped ? V8i{-1, -1, -1, -1, -1, -1, -1, -1} : V8i{0, 0, 0, 0, 0, 0, 0, 0};
+  int n = 0, x = x0;
+  for (; x + 8 <= x1; x += 8) {
+    V8i lo, hi;
+    std::memcpy(&lo, rlo + x, sizeof(lo));
+    std::memcpy(&hi, rhi + x, sizeof(hi));
+    const V8i sv = {st[x], st[x + 1], st[x + 2], st[x + 3],
+                    st[x + 4], st[x + 5], st[x + 6], st[x + 7]};
+    const V8i m = (lo <= hi) & (sv == 0) & (~vcap | ((lo <= vmin) & (hi >= vmax)));
+    if (!anyLane(m)) continue;
+    for (int i = 0; i < 8; ++i) {
+      out[n] = x + i;
+      n += m[i] != 0;
+    }
+  }
+  for (; x < x1; ++x) {
+    out[n] = x;
+    const bool full = (rlo[x] <= dmin) & (rhi[x] >= dmax);
+    n += (rlo[x] <= rhi[x]) & (st[x] == 0) & (full | !capped);
+  }
+  return n;
+}
+
 /// The active pixels of a dense row (open at this window size: inside [r, W - r), a requested
 /// range, not accepted yet; an effective range of at least 3 values; a left patch with
 /// structure): act[x] = 1 (else 0); the open pixels that fail get their code. Returns how many
@@ -2337,10 +2370,7 @@ void processRow(const LevelContext& c, int y, Scratch& s) {
     n_open = static_cast<int>(kept);
   } else {
     open.resize(W);
-    for (int x = r; x < W - r; ++x) {
-      open[n_open] = x;
-      n_open += (rlo[x] <= rhi[x]) & (st[x] == 0) & mayOpen(x);
-    }
+    n_open = openColumns(r, W - r, rlo, rhi, st, capped, dmin, dmax, open.data());
     open.resize(n_open);
   }
   // The engine choice only decides speed: both give the same values.
