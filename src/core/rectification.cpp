@@ -317,8 +317,10 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
     std::ostringstream m;
     m << "too few reliable patch matches to measure the rectification (" << offsets.size()
       << " of " << textured << " textured patches";
-    if (textured >= 32) {
-      m << "; rows misaligned by more than " << kPatchMaxDy << " px, or views that differ?";
+    if (textured >= 32 && int(offsets.size()) * 4 < textured) {
+      // Most textured patches found nothing within +-8 px rows: warn, as for a large offset.
+      m << "; rows misaligned by more than " << kPatchMaxDy << " px, or views that differ";
+      q.misaligned = true;
     }
     m << ")";
     q.message = m.str();
@@ -778,20 +780,23 @@ struct StereoRectifier::Impl {
   int quality_dmin = 0, quality_dmax = 0;
   std::future<RectificationQuality> pending_quality;
   int64_t pending_frame = 0;
+  uint64_t pending_generation = 0;
 
   // Calibrated / pass-through: measure the rectified pair now, or start a background measurement.
   void measureQuality(const cv::Mat& left_rect, const cv::Mat& right_rect) {
     // The disparity range of the search: the caller's (the pipeline passes the matcher's), else
-    // 0 .. a quarter of the width.
-    const int dmin = quality_range_set ? quality_dmin : 0;
+    // +- a quarter of the width.
+    const int dmin = quality_range_set ? quality_dmin : -left_rect.cols / 4;
     const int dmax = quality_range_set ? quality_dmax : left_rect.cols / 4;
     if (!async_quality) {
       recordQuality(
           measureRowAlignmentPatches(left_rect, right_rect, dmin, dmax, params.quality_max_features));
+      judgeDrift();
       return;
     }
     if (pending_quality.valid()) return;  // the previous one still runs: skip this one
     pending_frame = frame_index;
+    pending_generation = generation;
     pending_quality =
         std::async(std::launch::async, [l = left_rect.clone(), r = right_rect.clone(), dmin, dmax,
                                         n = params.quality_max_features] {
@@ -809,18 +814,20 @@ struct StereoRectifier::Impl {
       return;
     }
     const RectificationQuality q = pending_quality.get();
-    if (discard) return;
+    // A measurement of an earlier rectification (re-estimated since) says nothing about this one.
+    if (discard || pending_generation != generation) return;
     const int64_t now = frame_index;
     frame_index = pending_frame;  // the frame that was measured
     recordQuality(q);
     frame_index = now;
+    judgeDrift();
   }
 
   void recordQuality(RectificationQuality q) {
     q.frame_index = frame_index;
     q.method = active;
     q.estimated = params.mode != RectifyMode::kUncalibrated || have_uncal;
-    q.warning = q.valid && q.median_offset_px > params.quality_warn_px;
+    q.warning = (q.valid && q.median_offset_px > params.quality_warn_px) || q.misaligned;
     if (q.warning && q.message.empty()) {
       std::ostringstream m;
       m << "rectification residual: median vertical offset " << q.median_offset_px << " px exceeds "
@@ -840,9 +847,7 @@ struct StereoRectifier::Impl {
     if (have_uncal && size != uncal_size) dropUncalibrated();
     const bool collecting = state == UncalState::kCollecting;
     detail::Matches m;
-    if (collecting || measureNow()) {
-      detail::siftMatches(lg, rg, params.sift_features, params.ratio_test, &m);
-    }
+    if (collecting) detail::siftMatches(lg, rg, params.sift_features, params.ratio_test, &m);
     if (collecting) {
       // Cap the pool (oldest first) so that estimation cost stays bounded.
       const size_t kMaxPool = 20000;
@@ -874,7 +879,12 @@ struct StereoRectifier::Impl {
       }
     }
     remapPair(lg, rg, lc, olg, org, olc);
-    if (measureNow()) {
+    if (measureNow() && !collecting) {
+      // Frozen estimate: the patch measure on the rectified pair (in the background for a live
+      // caller), judged for drift when it is recorded (judgeDrift).
+      measureQuality(olg, org);
+    } else if (measureNow()) {
+      // While pooling, this frame's SIFT matches are at hand: their residual after rectification.
       RectificationQuality q;
       detail::Matches inl;
       cv::Matx33d F_frame;
@@ -894,20 +904,30 @@ struct StereoRectifier::Impl {
       }
       if (!q.valid) q.message = "too few feature matches to measure the rectification";
       recordQuality(q);
-      if (q.valid && state == UncalState::kFrozen && params.reestimate_threshold_px > 0) {
-        bad_measurements =
-            q.median_offset_px > params.reestimate_threshold_px ? bad_measurements + 1 : 0;
-        if (bad_measurements >= params.reestimate_after) {
-          // Drift: pool afresh; the current rectification stays in use until a new one is found.
-          state = UncalState::kCollecting;
-          pool = detail::Matches();
-          pooled_frames = 0;
-          bad_measurements = 0;
-          quality.message = "rectification drifted: re-estimating";
-        }
-      }
+      judgeDrift();
     }
     return true;
+  }
+
+  // Uncalibrated, frozen estimate: count measurements above reestimate_threshold_px (or with rows
+  // misaligned beyond the patch search) and start pooling afresh after reestimate_after of them
+  // in a row. The current rectification stays in use until a new one is found.
+  void judgeDrift() {
+    if (params.mode != RectifyMode::kUncalibrated || state != UncalState::kFrozen ||
+        !(params.reestimate_threshold_px > 0)) {
+      return;
+    }
+    const RectificationQuality& q = quality;
+    if (!q.valid && !q.misaligned) return;
+    const bool bad = q.misaligned || q.median_offset_px > params.reestimate_threshold_px;
+    bad_measurements = bad ? bad_measurements + 1 : 0;
+    if (bad_measurements >= params.reestimate_after) {
+      state = UncalState::kCollecting;
+      pool = detail::Matches();
+      pooled_frames = 0;
+      bad_measurements = 0;
+      quality.message = "rectification drifted: re-estimating";
+    }
   }
 };
 

@@ -293,10 +293,42 @@ TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {
   EXPECT_GT(rect.generation(), gen_a);
   const Residual gt = groundTruthResidual(rect, namedRig("rotated"), b[1].surface);
   std::printf(
-      "[ measure  ] after drift: ground truth |dy| median %.3f px, feature median %.3f px\n",
+      "[ measure  ] after drift: ground truth |dy| median %.3f px, measured median %.3f px\n",
       gt.median, rect.quality().median_offset_px);
   EXPECT_LT(gt.median, 0.5);
   EXPECT_FALSE(rect.quality().warning);
+}
+
+// The nodelet measures in the background: a drift measured there counts when it is recorded.
+TEST_F(UncalibratedTest, BackgroundMeasurementsAlsoTriggerReestimation) {
+  RectifyParams rp;
+  rp.mode = RectifyMode::kUncalibrated;
+  rp.estimation_frames = 2;
+  rp.quality_stride = 1;
+  rp.reestimate_threshold_px = 1.0;
+  rp.reestimate_after = 2;
+  StereoRectifier rect(rp);
+  const std::vector<Frame>& a = frames("parallel", 2);
+  const std::vector<Frame>& b = frames("rotated", 2);
+  cv::Mat lg, rg, lc;
+  std::string err;
+  for (int i = 0; i < 2; ++i)
+    ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  const uint64_t gen_a = rect.generation();
+  rect.setAsyncQuality(true);
+  ASSERT_TRUE(rect.rectify(b[0].left, b[0].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  rect.setAsyncQuality(false);  // waits for the background measurement and records it
+  EXPECT_EQ(rect.quality().frame_index, 2);
+  EXPECT_TRUE(rect.quality().warning) << rect.quality().message;
+  EXPECT_EQ(rect.generation(), gen_a);  // one bad measurement is not enough
+  ASSERT_TRUE(rect.rectify(b[1].left, b[1].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  // The second bad measurement in a row (the first was the background one): pooling starts.
+  EXPECT_EQ(rect.quality().message, "rectification drifted: re-estimating");
+  for (int i = 0; i < 2; ++i) {
+    ASSERT_TRUE(rect.rectify(b[i].left, b[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  }
+  EXPECT_GT(rect.generation(), gen_a);
+  EXPECT_LT(groundTruthResidual(rect, namedRig("rotated"), b[1].surface).median, 0.5);
 }
 
 TEST_F(UncalibratedTest, FocalAndBaselineMakeDepthMetric) {

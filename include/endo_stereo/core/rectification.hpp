@@ -129,8 +129,8 @@ struct RectifyParams {
   int quality_stride = 30;
   /// Warning threshold on the median vertical offset, px, > 0.
   double quality_warn_px = 1.0;
-  /// Calibrated and pass-through modes: most patches of the quality figure, >= 0 (0 = one per
-  /// 16 x 16 px; measureRowAlignmentPatches). Uncalibrated mode uses sift_features.
+  /// Most patches of the quality figure, >= 0 (0 = one per 16 x 16 px;
+  /// measureRowAlignmentPatches). Uncalibrated mode, while pooling, uses its SIFT matches.
   int quality_max_features = 300;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
@@ -144,7 +144,10 @@ struct RectificationQuality {
   double p90_offset_px = 0;     ///< 90th percentile of the same
   int num_matches = 0;          ///< inlier matches the figures are computed from
   int64_t frame_index = -1;     ///< rectify() call (0-based) it was measured on
-  bool warning = false;         ///< median_offset_px > RectifyParams::quality_warn_px
+  /// Patch measure: most textured patches found no match within +-8 px rows (rows misaligned by
+  /// more, or views that differ); valid is then false and warning true.
+  bool misaligned = false;
+  bool warning = false;  ///< median_offset_px > RectifyParams::quality_warn_px, or misaligned
   /// Uncalibrated: the rectification was estimated (false: "could not be estimated"). True in
   /// the other modes.
   bool estimated = false;
@@ -258,19 +261,20 @@ class StereoRectifier {
   void reset();
 
   /**
-   * Calibrated and pass-through modes: measure the quality (measureRowAlignmentPatches, some
+   * Measure the quality (measureRowAlignmentPatches, some
    * tens of ms at 960x540) on a background thread at the lowest priority instead of inside
    * rectify() (default false: inside). The rectified images do not depend on the measurement in
    * these modes, only quality() does: it then reports the measurement of an earlier frame
    * (frame_index says which) once it is done, and a stride's measurement is skipped while the
    * previous one still runs. A live caller (the nodelet) uses this so that one frame in
-   * quality_stride does not take longer. Uncalibrated mode always measures inline, with SIFT
-   * (the measurement decides re-estimation there).
+   * quality_stride does not take longer. Uncalibrated mode measures the same way once its
+   * estimate is frozen (a drift is then noticed when the measurement is recorded); while it pools
+   * SIFT matches for an estimate, it measures inline with those matches.
    */
   void setAsyncQuality(bool async);
 
-  /// Calibrated and pass-through modes: the disparity range the quality measurement searches
-  /// (the pipeline passes the matcher's). Until set (or with min > max): 0 .. width / 4.
+  /// The disparity range the patch quality measurement searches
+  /// (the pipeline passes the matcher's). Until set (or with min > max): +-width / 4.
   void setQualityDisparityRange(int min_disparity, int max_disparity);
 
  private:
@@ -295,10 +299,11 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
  * [min_disparity, max_disparity] and vertical offsets of +-8 px (ZNCC); a match counts when its
  * ZNCC is at least 0.8, 0.05 above the best match 3 or more disparities away, and not cut by the
  * disparity range. Its vertical offset is refined to sub-pixel by a parabola; offsets beyond 8
- * px read as 8 (still far above any warning level). Fills valid/median/p90/num_matches (valid
- * needs 8 matches). Uses no cv::parallel_for_ (safe on a background thread: OpenCV runs
- * parallel_for_ serially while another thread is inside one). Calibrated and pass-through modes
- * measure with this; uncalibrated mode uses its SIFT matches.
+ * px find no match: when most textured patches find none, misaligned is set (and valid is
+ * false). Fills valid/median/p90/num_matches (valid needs 8 matches). Uses no cv::parallel_for_
+ * (safe on a background thread: OpenCV runs parallel_for_ serially while another thread is
+ * inside one). The rectifier measures with this in every mode, except while uncalibrated mode
+ * pools SIFT matches for an estimate (it then uses those matches).
  */
 RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
                                                 const cv::Mat& right_gray, int min_disparity,
