@@ -789,8 +789,8 @@ struct StereoRectifier::Impl {
     const int dmin = quality_range_set ? quality_dmin : -left_rect.cols / 4;
     const int dmax = quality_range_set ? quality_dmax : left_rect.cols / 4;
     if (!async_quality) {
-      recordQuality(
-          measureRowAlignmentPatches(left_rect, right_rect, dmin, dmax, params.quality_max_features));
+      recordQuality(measureRowAlignmentPatches(left_rect, right_rect, dmin, dmax,
+                                               params.quality_max_features));
       judgeDrift();
       return;
     }

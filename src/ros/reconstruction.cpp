@@ -519,7 +519,7 @@ void Reconstruction::processPair(const Pair& pair) {
   pipeline_ms_.push_back(out_.total_ms);
   if (pipeline_ms_.size() > kLatencyWindow) pipeline_ms_.pop_front();
   last_density_ = out_.match.stats.density();
-  if (out_.rect_quality.valid) last_quality_ = out_.rect_quality;
+  if (out_.rect_quality.valid || out_.rect_quality.misaligned) last_quality_ = out_.rect_quality;
   last_priors_used_ = out_.priors_used;
   last_prior_stats_ = out_.prior_stats;
 }
@@ -632,6 +632,9 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
                  "overloaded: " + std::to_string(new_drops) + " pairs dropped");
   } else if (last_quality_.valid && last_quality_.warning) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "rectification residual high");
+  } else if (last_quality_.misaligned) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
+                 "rectification: rows misaligned by more than 8 px (check the calibration)");
   } else if (c.pairs_received == diag_prev_.pairs_received &&
              (c.left_images != diag_prev_.left_images || c.right_images != diag_prev_.right_images)) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "images do not pair: " + last_error_);

@@ -491,6 +491,7 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
       j.key("measured_on_frame").value(f.quality.frame_index);
       j.key("warning").value(f.quality.warning);
     }
+    if (f.quality.misaligned) j.key("misaligned").value(true);
     if (!f.quality.message.empty()) j.key("message").value(f.quality.message);
     j.endObject();
     j.endObject();
@@ -691,6 +692,9 @@ int run(int argc, char** argv) {
                 << ": rectification leaves a median vertical offset of "
                 << out.rect_quality.median_offset_px << " px (90th percentile "
                 << out.rect_quality.p90_offset_px << " px): check the calibration\n";
+    } else if (out.rect_quality.misaligned && out.rect_quality.frame_index == out.frame_index) {
+      std::cerr << "endo_stereo_cli: warning: frame " << index << ": "
+                << out.rect_quality.message << ": check the calibration\n";
     }
 
     // Outputs of this frame.
