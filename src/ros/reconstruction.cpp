@@ -81,8 +81,8 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   if (!e.empty()) throw std::invalid_argument(e);
   pipeline_ = std::make_unique<Pipeline>(params);
   // The rectification residual (a patch search every quality_stride frames, ~40 ms of one core
-  // at 960x540; uncalibrated mode: SIFT, inline) is a diagnostic: measured beside the
-  // processing at the lowest priority, not inside a frame.
+  // at 960x540) is a diagnostic: measured beside the processing at the lowest priority, not
+  // inside a frame. (Uncalibrated mode still matches SIFT inline while it pools an estimate.)
   pipeline_->setAsyncRectificationQuality(true);
 
   if (!ros_params_.target_frame.empty()) {

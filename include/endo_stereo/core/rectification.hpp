@@ -261,15 +261,15 @@ class StereoRectifier {
   void reset();
 
   /**
-   * Measure the quality (measureRowAlignmentPatches, some
-   * tens of ms at 960x540) on a background thread at the lowest priority instead of inside
-   * rectify() (default false: inside). The rectified images do not depend on the measurement in
-   * these modes, only quality() does: it then reports the measurement of an earlier frame
-   * (frame_index says which) once it is done, and a stride's measurement is skipped while the
-   * previous one still runs. A live caller (the nodelet) uses this so that one frame in
-   * quality_stride does not take longer. Uncalibrated mode measures the same way once its
-   * estimate is frozen (a drift is then noticed when the measurement is recorded); while it pools
-   * SIFT matches for an estimate, it measures inline with those matches.
+   * Measure the quality (measureRowAlignmentPatches, some tens of ms at 960x540) on a background
+   * thread at the lowest priority instead of inside rectify() (default false: inside). The
+   * rectified images do not wait for it, only quality() does: it then reports the measurement
+   * of an earlier frame (frame_index says which) once it is done, and a stride's measurement is
+   * skipped while the previous one still runs. A live caller (the nodelet) uses this so that one
+   * frame in quality_stride does not take longer. Uncalibrated mode measures the same way once
+   * its estimate is frozen (a drift is then judged when the measurement is recorded, so a
+   * re-estimation starts a few frames later); while it pools SIFT matches for an estimate, it
+   * measures inline with those matches.
    */
   void setAsyncQuality(bool async);
 
