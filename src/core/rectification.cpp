@@ -318,8 +318,11 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
     m << "too few reliable patch matches to measure the rectification (" << offsets.size()
       << " of " << textured << " textured patches";
     if (textured >= 32 && int(offsets.size()) * 4 < textured) {
-      // Most textured patches found nothing within +-8 px rows: warn, as for a large offset.
-      m << "; rows misaligned by more than " << kPatchMaxDy << " px, or views that differ";
+      // Most textured patches found nothing within +-8 px rows and the disparity range: warn,
+      // as for a large offset.
+      m << "; rows misaligned by more than " << kPatchMaxDy
+        << " px, views that differ, or disparities outside [" << min_disparity << ", "
+        << max_disparity << "]";
       q.misaligned = true;
     }
     m << ")";

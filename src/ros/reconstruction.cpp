@@ -634,7 +634,7 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "rectification residual high");
   } else if (last_quality_.misaligned) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
-                 "rectification: rows misaligned by more than 8 px (check the calibration)");
+                 "rectification: no row alignment found: " + last_quality_.message);
   } else if (c.pairs_received == diag_prev_.pairs_received &&
              (c.left_images != diag_prev_.left_images || c.right_images != diag_prev_.right_images)) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "images do not pair: " + last_error_);

@@ -144,8 +144,9 @@ struct RectificationQuality {
   double p90_offset_px = 0;     ///< 90th percentile of the same
   int num_matches = 0;          ///< inlier matches the figures are computed from
   int64_t frame_index = -1;     ///< rectify() call (0-based) it was measured on
-  /// Patch measure: most textured patches found no match within +-8 px rows (rows misaligned by
-  /// more, or views that differ); valid is then false and warning true.
+  /// Patch measure: most textured patches found no match within +-8 px rows and the disparity
+  /// range (rows misaligned by more, views that differ, or a range that misses the scene); valid
+  /// is then false and warning true.
   bool misaligned = false;
   bool warning = false;  ///< median_offset_px > RectifyParams::quality_warn_px, or misaligned
   /// Uncalibrated: the rectification was estimated (false: "could not be estimated"). True in
