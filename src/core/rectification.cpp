@@ -175,32 +175,39 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
   }
   // Structure of every candidate centre: the patch sums of the squared central differences in x
   // and in y (column sums, then a running sum along the row). A patch is usable when both are
-  // large: texture in y fixes the vertical offset, texture in x the disparity.
+  // large: texture in y fixes the vertical offset, texture in x the disparity. The squared
+  // differences once per pixel (exact integers; rows 0 and H - 1 and the border columns unused).
+  cv::Mat gx2(H, W, CV_32F, cv::Scalar(0.f)), gy2(H, W, CV_32F, cv::Scalar(0.f));
+  for (int y = 1; y < H - 1; ++y) {
+    const uint8_t* up = left_gray.ptr<uint8_t>(y - 1);
+    const uint8_t* row = left_gray.ptr<uint8_t>(y);
+    const uint8_t* down = left_gray.ptr<uint8_t>(y + 1);
+    float* gx = gx2.ptr<float>(y);
+    float* gy = gy2.ptr<float>(y);
+    for (int x = 1; x < W - 1; ++x) {
+      const float dx = float(row[x + 1]) - float(row[x - 1]);
+      const float dy = float(down[x]) - float(up[x]);
+      gx[x] = dx * dx;
+      gy[x] = dy * dy;
+    }
+  }
   const int cw = W - 2;  // columns 1 .. W - 2 have central differences
   std::vector<double> gx_col(size_t(cw), 0.0), gy_col(size_t(cw), 0.0);
   cv::Mat score(H, W, CV_32F, cv::Scalar(0.f));
-  auto grad = [&](int y, int x, double* gx, double* gy) {
-    const uint8_t* r0 = left_gray.ptr<uint8_t>(y);
-    const double dx = double(r0[x + 1]) - double(r0[x - 1]);
-    const double dy = double(left_gray.ptr<uint8_t>(y + 1)[x]) -
-                      double(left_gray.ptr<uint8_t>(y - 1)[x]);
-    *gx = dx * dx;
-    *gy = dy * dy;
-  };
   for (int y = y_lo - h; y <= y_hi + h; ++y) {
+    const float* gx = gx2.ptr<float>(y);
+    const float* gy = gy2.ptr<float>(y);
     for (int x = 1; x < W - 1; ++x) {
-      double gx, gy;
-      grad(y, x, &gx, &gy);
-      gx_col[size_t(x - 1)] += gx;
-      gy_col[size_t(x - 1)] += gy;
+      gx_col[size_t(x - 1)] += gx[x];
+      gy_col[size_t(x - 1)] += gy[x];
     }
     const int yo = y - 2 * h - 1;  // the row that leaves the column window
     if (yo >= y_lo - h) {
+      const float* ox = gx2.ptr<float>(yo);
+      const float* oy = gy2.ptr<float>(yo);
       for (int x = 1; x < W - 1; ++x) {
-        double gx, gy;
-        grad(yo, x, &gx, &gy);
-        gx_col[size_t(x - 1)] -= gx;
-        gy_col[size_t(x - 1)] -= gy;
+        gx_col[size_t(x - 1)] -= ox[x];
+        gy_col[size_t(x - 1)] -= oy[x];
       }
     }
     const int yc = y - h;  // the centre row whose window is complete
@@ -778,9 +785,8 @@ struct StereoRectifier::Impl {
 
   // setAsyncQuality(): one measurement at a time on a background thread.
   bool async_quality = false;
-  // setQualityDisparityRange().
-  bool quality_range_set = false;
-  int quality_dmin = 0, quality_dmax = 0;
+  // setQualityDisparityRange(); min > max: not set.
+  int quality_dmin = 0, quality_dmax = -1;
   std::future<RectificationQuality> pending_quality;
   int64_t pending_frame = 0;
   uint64_t pending_generation = 0;
@@ -789,8 +795,9 @@ struct StereoRectifier::Impl {
   void measureQuality(const cv::Mat& left_rect, const cv::Mat& right_rect) {
     // The disparity range of the search: the caller's (the pipeline passes the matcher's), else
     // +- a quarter of the width.
-    const int dmin = quality_range_set ? quality_dmin : -left_rect.cols / 4;
-    const int dmax = quality_range_set ? quality_dmax : left_rect.cols / 4;
+    const bool range_set = quality_dmin <= quality_dmax;
+    const int dmin = range_set ? quality_dmin : -left_rect.cols / 4;
+    const int dmax = range_set ? quality_dmax : left_rect.cols / 4;
     if (!async_quality) {
       recordQuality(measureRowAlignmentPatches(left_rect, right_rect, dmin, dmax,
                                                params.quality_max_features));
@@ -1121,7 +1128,6 @@ bool StereoRectifier::fundamentalMatrix(cv::Matx33d* F) const {
 }
 
 void StereoRectifier::setQualityDisparityRange(int min_disparity, int max_disparity) {
-  impl_->quality_range_set = min_disparity <= max_disparity;
   impl_->quality_dmin = min_disparity;
   impl_->quality_dmax = max_disparity;
 }

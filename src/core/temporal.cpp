@@ -242,8 +242,11 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
         }
         if (!edge_zone) return;
         // Block min / max of this stripe's block rows: vertical over the block's rows into one
-        // row, then horizontal over the block's columns.
-        std::vector<float> col_lo(size_t(size.width)), col_hi(size_t(size.width));
+        // row, then horizontal over the block's columns. (Column buffers per worker thread:
+        // kept from frame to frame.)
+        thread_local std::vector<float> col_lo, col_hi;
+        col_lo.resize(size_t(size.width));
+        col_hi.resize(size_t(size.width));
         for (int y0 = y_begin; y0 < y_end; y0 += kEdgeBlock) {
           const int y1 = std::min(y_end, y0 + kEdgeBlock);
           float* clo = col_lo.data();

@@ -204,6 +204,26 @@ class UncalibratedTest : public ::testing::Test {
  protected:
   void SetUp() override { cv::setNumThreads(1); }
   void TearDown() override { cv::setNumThreads(-1); }
+
+  // The drift tests: uncalibrated, measured every frame, re-estimated after two measurements
+  // above 1 px in a row.
+  static RectifyParams driftParams() {
+    RectifyParams rp;
+    rp.mode = RectifyMode::kUncalibrated;
+    rp.estimation_frames = 2;
+    rp.quality_stride = 1;
+    rp.reestimate_threshold_px = 1.0;
+    rp.reestimate_after = 2;
+    return rp;
+  }
+  // Pools the parallel rig's two frames: the estimate is then frozen.
+  static void freezeOnParallelRig(StereoRectifier& rect) {
+    const std::vector<Frame>& a = frames("parallel", 2);
+    cv::Mat lg, rg, lc;
+    std::string err;
+    for (int i = 0; i < 2; ++i)
+      ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
+  }
 };
 
 TEST_F(UncalibratedTest, HomographyRefusesAnEpipoleInsideTheImage) {
@@ -266,19 +286,11 @@ TEST_F(UncalibratedTest, PlanarSceneIsRefusedAsAmbiguous) {
 }
 
 TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {
-  RectifyParams rp;
-  rp.mode = RectifyMode::kUncalibrated;
-  rp.estimation_frames = 2;
-  rp.quality_stride = 1;
-  rp.reestimate_threshold_px = 1.0;
-  rp.reestimate_after = 2;
-  StereoRectifier rect(rp);
-  const std::vector<Frame>& a = frames("parallel", 2);
+  StereoRectifier rect(driftParams());
+  ASSERT_NO_FATAL_FAILURE(freezeOnParallelRig(rect));
   const std::vector<Frame>& b = frames("rotated", 2);
   cv::Mat lg, rg, lc;
   std::string err;
-  for (int i = 0; i < 2; ++i)
-    ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
   const uint64_t gen_a = rect.generation();
   EXPECT_LT(rect.quality().median_offset_px, 0.5);
   // The rig changes (the right camera rolls by 3 degrees): the fixed estimate is now wrong.
@@ -301,19 +313,11 @@ TEST_F(UncalibratedTest, ReestimatesWhenTheRigDrifts) {
 
 // The nodelet measures in the background: a drift measured there counts when it is recorded.
 TEST_F(UncalibratedTest, BackgroundMeasurementsAlsoTriggerReestimation) {
-  RectifyParams rp;
-  rp.mode = RectifyMode::kUncalibrated;
-  rp.estimation_frames = 2;
-  rp.quality_stride = 1;
-  rp.reestimate_threshold_px = 1.0;
-  rp.reestimate_after = 2;
-  StereoRectifier rect(rp);
-  const std::vector<Frame>& a = frames("parallel", 2);
+  StereoRectifier rect(driftParams());
+  ASSERT_NO_FATAL_FAILURE(freezeOnParallelRig(rect));
   const std::vector<Frame>& b = frames("rotated", 2);
   cv::Mat lg, rg, lc;
   std::string err;
-  for (int i = 0; i < 2; ++i)
-    ASSERT_TRUE(rect.rectify(a[i].left, a[i].right, cv::Mat(), lg, rg, lc, &err)) << err;
   const uint64_t gen_a = rect.generation();
   rect.setAsyncQuality(true);
   ASSERT_TRUE(rect.rectify(b[0].left, b[0].right, cv::Mat(), lg, rg, lc, &err)) << err;
