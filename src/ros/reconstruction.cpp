@@ -141,10 +141,10 @@ Reconstruction::~Reconstruction() {
     unsubscribeInputs();
   }
   {
-    std::lock_guard<std::mutex> lock(slot_mutex_);
+    std::lock_guard<std::mutex> lock(backlog_mutex_);
     shutdown_ = true;
   }
-  slot_cv_.notify_all();
+  backlog_cv_.notify_all();
   {
     std::lock_guard<std::mutex> lock(info_mutex_);
     info_stopping_ = true;
@@ -295,16 +295,19 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
     left_unpaired_since_ = ros::WallTime();
     right_unpaired_since_ = ros::WallTime();
   }
-  bool dropped = false;
+  int64_t dropped = 0;
   {
-    std::lock_guard<std::mutex> lock(slot_mutex_);
-    dropped = slot_.has_value();
-    slot_ = std::move(pair);
+    std::lock_guard<std::mutex> lock(backlog_mutex_);
+    backlog_.push_back(std::move(pair));
+    while (backlog_.size() > static_cast<size_t>(ros_params_.backlog_pairs)) {
+      backlog_.pop_front();  // the oldest waiting pair makes room for the newest
+      ++dropped;
+    }
   }
-  slot_cv_.notify_one();
+  backlog_cv_.notify_one();
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++counters_.pairs_received;
-  if (dropped) ++counters_.pairs_dropped;
+  counters_.pairs_dropped += dropped;
 }
 
 // ------------------------------------------------------------------------------------------------
@@ -341,12 +344,24 @@ ReconstructionCounters Reconstruction::counters() const {
 void Reconstruction::workerLoop() {
   for (;;) {
     Pair pair;
+    int64_t stale = 0;
     {
-      std::unique_lock<std::mutex> lock(slot_mutex_);
-      slot_cv_.wait(lock, [this] { return shutdown_ || slot_.has_value(); });
+      std::unique_lock<std::mutex> lock(backlog_mutex_);
+      backlog_cv_.wait(lock, [this] { return shutdown_ || !backlog_.empty(); });
       if (shutdown_) return;
-      pair = std::move(*slot_);
-      slot_.reset();
+      // Sustained overload: pairs that waited too long make way for the newest.
+      const ros::WallTime now = ros::WallTime::now();
+      while (backlog_.size() > 1 &&
+             (now - backlog_.front().arrival).toSec() > ros_params_.backlog_max_age_s) {
+        backlog_.pop_front();
+        ++stale;
+      }
+      pair = std::move(backlog_.front());
+      backlog_.pop_front();
+    }
+    if (stale > 0) {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      counters_.pairs_dropped += stale;
     }
     try {
       if (needsCameraInfo() && (!pair.left_info || !pair.right_info)) awaitCameraInfo(pair);
@@ -612,6 +627,11 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
 
 void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   const ros::WallTime now = ros::WallTime::now();
+  size_t waiting = 0;
+  {
+    std::lock_guard<std::mutex> backlog_lock(backlog_mutex_);
+    waiting = backlog_.size();
+  }
   std::lock_guard<std::mutex> lock(stats_mutex_);
   const ReconstructionCounters& c = counters_;
   const double dt = std::max(1e-6, (now - diag_prev_time_).toSec());
@@ -650,11 +670,12 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("pairs processed", c.pairs_processed);
   stat.add("pairs dropped", c.pairs_dropped);
   stat.add("pairs rejected", c.pairs_rejected);
+  stat.add("pairs waiting", static_cast<int>(waiting));
   stat.add("stream restarts", c.restarts);
   stat.add("tf failures", c.tf_failures);
   stat.add("latency median (ms)", percentile(lat, 0.5));
   stat.add("latency p90 (ms)", percentile(lat, 0.9));
-  // The core's share of the latency (Pipeline::process); the rest is waiting in the slot,
+  // The core's share of the latency (Pipeline::process); the rest is waiting in the backlog,
   // conversions and publishing.
   stat.add("pipeline median (ms)", percentile(pipe, 0.5));
   stat.add("density", last_density_);

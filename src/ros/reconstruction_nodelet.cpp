@@ -58,9 +58,11 @@ void ReconstructionNodelet::onInit() {
   reconfigure_server_->setCallback(
       boost::bind(&ReconstructionNodelet::reconfigureCb, this, boost::placeholders::_1,
                   boost::placeholders::_2));
-  NODELET_INFO("ready (%s input, %s sync, queue %d); waiting for subscribers",
+  NODELET_INFO("ready (%s input, %s sync, queue %d, backlog %d pairs up to %.2f s); waiting for "
+               "subscribers",
                toString(params.rectify.mode).c_str(),
-               ros_params.approximate_sync ? "approximate" : "exact", ros_params.queue_size);
+               ros_params.approximate_sync ? "approximate" : "exact", ros_params.queue_size,
+               ros_params.backlog_pairs, ros_params.backlog_max_age_s);
 }
 
 void ReconstructionNodelet::reconfigureCb(EndoStereoConfig& config, uint32_t /*level*/) {

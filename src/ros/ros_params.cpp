@@ -95,6 +95,10 @@ std::string RosParams::validate() const {
   std::ostringstream m;
   if (queue_size < 1 || queue_size > 100) {
     m << "queue_size: must be in [1, 100], got " << queue_size;
+  } else if (backlog_pairs < 1 || backlog_pairs > 100) {
+    m << "backlog_pairs: must be in [1, 100], got " << backlog_pairs;
+  } else if (!(backlog_max_age_s > 0.0 && backlog_max_age_s <= 10.0)) {
+    m << "backlog_max_age_s: must be in (0, 10] s, got " << backlog_max_age_s;
   } else if (!(sync_tolerance_s > 0.0 && sync_tolerance_s <= 1.0)) {
     m << "sync_tolerance_s: must be in (0, 1] s, got " << sync_tolerance_s;
   } else if (image_transport.empty()) {
@@ -148,6 +152,8 @@ std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params) {
   RosParams p = params;
   std::string e;
   if (e.empty()) e = readBoth(pnh, "queue_size", &p.queue_size);
+  if (e.empty()) e = readBoth(pnh, "backlog_pairs", &p.backlog_pairs);
+  if (e.empty()) e = readBoth(pnh, "backlog_max_age_s", &p.backlog_max_age_s);
   if (e.empty()) e = readBoth(pnh, "approximate_sync", &p.approximate_sync);
   if (e.empty()) e = readBoth(pnh, "sync_tolerance_s", &p.sync_tolerance_s);
   if (e.empty()) e = readBoth(pnh, "image_transport", &p.image_transport);

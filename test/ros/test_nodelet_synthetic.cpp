@@ -3,11 +3,13 @@
 // truth. Every wait has a timeout; nothing relies on a fixed sleep.
 //
 // Namespaces (see the .test file): /stereo (exact sync), /approx (approximate sync),
-// /bad (bad-input sequence), /tf and /tf_missing (target_frame with and without a transform).
+// /bad (bad-input sequence), /tf and /tf_missing (target_frame with and without a transform),
+// /backlog, /newest and /stale (the backlog between the callbacks and the processing thread).
 #include <algorithm>
 #include <cmath>
 #include <map>
 #include <memory>
+#include <vector>
 
 #include <dynamic_reconfigure/Reconfigure.h>
 #include <gtest/gtest.h>
@@ -398,6 +400,103 @@ TEST(ExactSync, OffsetStampsDoNotPairAndAreReported) {
   }, 5.0);
   EXPECT_TRUE(report) << "offset stamps under exact sync were not reported";
   EXPECT_EQ(disparities.count(), 0u);
+}
+
+// --- Overload: a burst of pairs arriving faster than they are processed (/backlog: up to 5
+// pairs wait; /newest: only the newest waits; /stale: 5 may wait, but not for more than 1 ms).
+
+struct BurstOutcome {
+  std::vector<ros::Time> stamps;       // the burst's stamps, in order
+  std::vector<ros::Time> outputs;      // stamps of the burst's disparities, in arrival order
+  double received = 0, processed = 0, dropped = 0;  // the burst's share of the counters
+};
+
+/// Gets one pair through @p ns, waits until the nodelet is idle, publishes @p n pairs back to
+/// back, and waits until every one of them is accounted for (processed or dropped).
+::testing::AssertionResult runBurst(const std::string& ns, int n, BurstOutcome* out) {
+  ros::NodeHandle nh;
+  StereoPublisher pub(ns);
+  Collector<stereo_msgs::DisparityImage> disparities(nh, ns + "/disparity");
+  Collector<DiagArray> diag(nh, "/diagnostics");
+  const std::string node = ns + "/reconstruction";
+  if (!waitUntil([&] { return pub.inputsSubscribed(); }, 10.0)) {
+    return ::testing::AssertionFailure() << ns << ": inputs never subscribed";
+  }
+  pub.publishGoodInfo();
+  if (!publishUntil(pub, [&] { return disparities.count() > 0; }, 30.0)) {
+    return ::testing::AssertionFailure() << ns << ": no output for the first pairs";
+  }
+  // Idle: every pair received so far is accounted for and none waits.
+  auto settled = [&](double extra_received, std::map<std::string, std::string>* kv_out) {
+    return [=](const DiagArray& a) {
+      const auto kv = test::statusValues(a, node);
+      const double rec = test::numberOr(kv, "pairs received", -1);
+      const double done = test::numberOr(kv, "pairs processed", 0) +
+                          test::numberOr(kv, "pairs dropped", 0) +
+                          test::numberOr(kv, "pairs rejected", 0);
+      const bool ok = rec >= extra_received && rec == done &&
+                      test::numberOr(kv, "pairs waiting", -1) == 0;
+      if (ok && kv_out) *kv_out = kv;
+      return ok;
+    };
+  };
+  std::map<std::string, std::string> before, after;
+  diag.clear();
+  if (!diag.waitFor(settled(1, &before), 10.0)) {
+    return ::testing::AssertionFailure() << ns << ": never idle before the burst";
+  }
+  disparities.clear();
+  for (int i = 0; i < n; ++i) {
+    out->stamps.push_back(nextStamp());
+    pub.publishPair(out->stamps.back());
+  }
+  const double rec0 = test::numberOr(before, "pairs received", 0);
+  diag.clear();
+  if (!diag.waitFor(settled(rec0 + n, &after), 30.0)) {
+    return ::testing::AssertionFailure() << ns << ": the burst was not accounted for in 30 s";
+  }
+  out->received = test::numberOr(after, "pairs received", 0) - rec0;
+  out->processed = test::numberOr(after, "pairs processed", 0) -
+                   test::numberOr(before, "pairs processed", 0);
+  // The disparities travel on their own connection: wait for as many as were processed.
+  waitUntil([&] { return static_cast<double>(disparities.count()) >= out->processed; }, 10.0);
+  for (const auto& m : disparities.all()) out->outputs.push_back(m->header.stamp);
+  out->dropped =
+      test::numberOr(after, "pairs dropped", 0) - test::numberOr(before, "pairs dropped", 0);
+  return ::testing::AssertionSuccess();
+}
+
+TEST(Backlog, ABurstThatFitsTheBacklogIsProcessedWholeAndInOrder) {
+  BurstOutcome b;
+  ASSERT_TRUE(runBurst("/backlog", 5, &b));
+  EXPECT_EQ(b.received, 5);
+  EXPECT_EQ(b.dropped, 0);
+  EXPECT_EQ(b.processed, 5);
+  EXPECT_EQ(b.outputs, b.stamps);
+}
+
+TEST(Backlog, WithABacklogOfOneOnlyTheNewestWaits) {
+  BurstOutcome b;
+  ASSERT_TRUE(runBurst("/newest", 5, &b));
+  EXPECT_EQ(b.received, 5);
+  EXPECT_EQ(b.processed + b.dropped, 5);
+  // The first pair is taken at once; the others arrive while it is processed (back to back,
+  // well under a millisecond apart) and replace one another.
+  EXPECT_GE(b.dropped, 1);
+  ASSERT_FALSE(b.outputs.empty());
+  EXPECT_EQ(b.outputs.back(), b.stamps.back());
+  EXPECT_EQ(static_cast<double>(b.outputs.size()), b.processed);
+}
+
+TEST(Backlog, PairsWaitingLongerThanTheMaximumAgeMakeWayForTheNewest) {
+  BurstOutcome b;
+  ASSERT_TRUE(runBurst("/stale", 5, &b));
+  EXPECT_EQ(b.received, 5);
+  EXPECT_EQ(b.processed + b.dropped, 5);
+  // Room for all five, but each waits longer than 1 ms while the first one is processed.
+  EXPECT_GE(b.dropped, 1);
+  ASSERT_FALSE(b.outputs.empty());
+  EXPECT_EQ(b.outputs.back(), b.stamps.back());
 }
 
 // --- Bad input: each case must be reported (diagnostics "last error", pairs rejected) and the

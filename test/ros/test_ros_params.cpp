@@ -101,8 +101,12 @@ TEST(RosParamsFromRos, PlainNamesOverrideThePresetRosSection) {
   pnh.setParam("queue_size", 3);
   pnh.setParam("sync_tolerance_s", 0.02);
   pnh.setParam("target_frame", std::string("world"));
+  pnh.setParam("ros/backlog_pairs", 5);
+  pnh.setParam("backlog_max_age_s", 0.5);
   RosParams r;
   ASSERT_EQ(loadRosParams(pnh, r), "");
+  EXPECT_EQ(r.backlog_pairs, 5);
+  EXPECT_DOUBLE_EQ(r.backlog_max_age_s, 0.5);
   EXPECT_TRUE(r.approximate_sync);
   EXPECT_EQ(r.queue_size, 3);
   EXPECT_DOUBLE_EQ(r.sync_tolerance_s, 0.02);
@@ -128,6 +132,12 @@ TEST(RosParamsFromRos, WrongTypeAndRangeAreReported) {
   EXPECT_NE(r.validate().find("camera_info_wait_s"), std::string::npos);
   r.camera_info_wait_s = 0.0;  // 0 = refuse at once, as before
   EXPECT_EQ(r.validate(), "");
+  r = RosParams();
+  r.backlog_pairs = 0;
+  EXPECT_NE(r.validate().find("backlog_pairs"), std::string::npos);
+  r = RosParams();
+  r.backlog_max_age_s = 0.0;
+  EXPECT_NE(r.validate().find("backlog_max_age_s"), std::string::npos);
 }
 
 }  // namespace

@@ -20,8 +20,11 @@
  *
  * Behaviour:
  * - Lazy: the inputs are subscribed only while some output has a subscriber.
- * - Bounded: one processing thread takes the newest pair from a one-pair slot; a pair overwritten
- *   in the slot before it was processed is counted as dropped. Nothing queues without limit.
+ * - Bounded: one processing thread takes the pairs in order from a backlog of at most
+ *   `~backlog_pairs`; a pair pushed out of a full backlog, or skipped because it waited longer
+ *   than `~backlog_max_age_s` while a newer one waits, is counted as dropped. So a short stall
+ *   is caught up without loss, sustained overload processes the newest pair, and nothing
+ *   queues without limit.
  * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
  *   problem, counted as rejected, and the next good pair is processed.
  * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
@@ -66,7 +69,7 @@ struct ReconstructionCounters {
   int64_t right_images = 0;     ///< right images received
   int64_t pairs_received = 0;   ///< pairs formed by the synchroniser
   int64_t pairs_processed = 0;  ///< pairs processed and published
-  int64_t pairs_dropped = 0;    ///< pairs replaced by a newer pair before processing (overload)
+  int64_t pairs_dropped = 0;    ///< pairs pushed out of the backlog or skipped as stale (overload)
   int64_t pairs_rejected = 0;   ///< pairs refused (bad input, pipeline error, out of order)
   int64_t restarts = 0;         ///< stream restarts (time jumped back more than restart_jump_back_s)
   int64_t tf_failures = 0;      ///< clouds not published for lack of the target_frame transform
@@ -154,10 +157,10 @@ class Reconstruction {
   ros::WallTime left_unpaired_since_, right_unpaired_since_;  // first image since the last pair
   ros::Time last_left_stamp_, last_right_stamp_;
 
-  // --- The one-pair slot between the callbacks and the processing thread.
-  std::mutex slot_mutex_;
-  std::condition_variable slot_cv_;
-  std::optional<Pair> slot_;
+  // --- The bounded backlog between the callbacks and the processing thread (oldest first).
+  std::mutex backlog_mutex_;
+  std::condition_variable backlog_cv_;
+  std::deque<Pair> backlog_;
   bool shutdown_ = false;
   std::thread worker_;
 

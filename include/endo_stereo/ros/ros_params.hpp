@@ -28,6 +28,15 @@ struct RosParams {
   /// Subscriber and synchroniser queue length, messages, in [1, 100]. Bounds memory: a late
   /// image is dropped by the synchroniser, never queued without limit.
   int queue_size = 5;
+  /// Pairs waiting for the processing thread, in [1, 100]. A pair arriving while this many wait
+  /// pushes out the oldest (counted as dropped). 1 = only the newest pair waits (the lowest
+  /// latency); more lets a short stall (the first frame, which searches the full disparity range,
+  /// takes two to three frame periods) be caught up instead of losing the pairs that came during it.
+  int backlog_pairs = 3;
+  /// A waiting pair older than this (since it was paired) is skipped, counted as dropped, when a
+  /// newer pair waits too: under sustained overload the newest pair is processed and the latency
+  /// stays bounded. s, in (0, 10].
+  double backlog_max_age_s = 0.2;
   /// Pair images by ApproximateTime (true) or ExactTime (false) synchronisation.
   bool approximate_sync = false;
   /// ApproximateTime only: largest stamp difference accepted within a pair, s, in (0, 1].
