@@ -35,8 +35,10 @@ struct RosParams {
   int backlog_pairs = 3;
   /// A waiting pair older than this (since it was paired) is skipped, counted as dropped, when a
   /// newer pair waits too: under sustained overload the newest pair is processed and the latency
-  /// stays bounded. s, in (0, 10].
-  double backlog_max_age_s = 0.2;
+  /// stays bounded, at about this age plus one frame's processing (with backlog_pairs 1, about
+  /// one and a half frames' processing). The start-up stall keeps pairs waiting about 0.1 s at
+  /// 25 fps on the reference machine. s, in (0, 10].
+  double backlog_max_age_s = 0.15;
   /// Pair images by ApproximateTime (true) or ExactTime (false) synchronisation.
   bool approximate_sync = false;
   /// ApproximateTime only: largest stamp difference accepted within a pair, s, in (0, 1].
