@@ -12,7 +12,8 @@
 # Writes out/bench_ros/ (bag, logs, JSON) and the table to $BENCH_NOTES (default
 # out/bench_ros/ros_bench.md; BENCHMARKS.md section 6 records a run).
 # Environment: BENCH_FRAMES (100), BENCH_WIDTH x BENCH_HEIGHT (960 x 540), BENCH_RATE (1.0 = 25 fps),
-# BENCH_TARGETS ("endo_stereo stereo_image_proc").
+# BENCH_TARGETS ("endo_stereo stereo_image_proc"), BENCH_ES_PARAMS (endo_stereo's private
+# parameters on top of config/default.yaml, "name=value ...", e.g. "backlog_pairs=1").
 set -uo pipefail
 source "$(dirname "$0")/env.sh"
 es_source_ws
@@ -87,6 +88,9 @@ run_target() {  # $1 = endo_stereo | stereo_image_proc
     rosparam load "$ES_ROOT/config/default.yaml" "$name"
     rosparam set "$name/matcher/min_disparity" "$DMIN"
     rosparam set "$name/matcher/max_disparity" "$DMAX"
+    for kv in ${BENCH_ES_PARAMS:-}; do  # e.g. "backlog_pairs=1 rectify/quality_stride=0"
+      rosparam set "$name/${kv%%=*}" "${kv#*=}"
+    done
     "$WS/devel/lib/endo_stereo/endo_stereo_node" __ns:="$NS" __name:=endo_stereo \
       > "$OUT/log/$target.log" 2>&1 &
   else

@@ -361,6 +361,10 @@ def listen(args):
                    "output_rate_over_input_span_hz": len(outs) / in_span if in_span > 0 else None,
                    "latency_median_ms": float(np.median(lat)) if lat else None,
                    "latency_p90_ms": float(np.percentile(lat, 90)) if lat else None,
+                   # Per input pair (None = no output): how the start-up stall is caught up.
+                   "latency_per_pair_ms": [
+                       round(1e3 * (r["out"][s] - r["in"][s]), 1) if s in r["out"] else None
+                       for s in ins],
                    "density_mean": float(np.mean(r["density"])) if r["density"] else None,
                    "nodelet_diagnostics": r["diag"]}
             result[ns] = res
