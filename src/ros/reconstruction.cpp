@@ -27,6 +27,11 @@ namespace enc = sensor_msgs::image_encodings;
 constexpr size_t kLatencyWindow = 250;
 // Throttle period of input error messages, s: often enough to notice, rare enough for a flood.
 constexpr double kThrottleS = 5.0;
+// The backlog's overload test compares the medians of the last kRateWindow processing times and
+// pair intervals, once kRateGrace pairs have been processed (the first frames after start-up
+// are slower: the first searches the full range, the next ones fill their priors).
+constexpr size_t kRateWindow = 8;
+constexpr int64_t kRateGrace = 10;
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
@@ -298,6 +303,11 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
   int64_t dropped = 0;
   {
     std::lock_guard<std::mutex> lock(backlog_mutex_);
+    if (!last_pair_arrival_.isZero()) {
+      pair_intervals_ms_.push_back((pair.arrival - last_pair_arrival_).toSec() * 1e3);
+      if (pair_intervals_ms_.size() > kRateWindow) pair_intervals_ms_.pop_front();
+    }
+    last_pair_arrival_ = pair.arrival;
     backlog_.push_back(std::move(pair));
     while (backlog_.size() > static_cast<size_t>(ros_params_.backlog_pairs)) {
       backlog_.pop_front();  // the oldest waiting pair makes room for the newest
@@ -349,10 +359,19 @@ void Reconstruction::workerLoop() {
       std::unique_lock<std::mutex> lock(backlog_mutex_);
       backlog_cv_.wait(lock, [this] { return shutdown_ || !backlog_.empty(); });
       if (shutdown_) return;
-      // Sustained overload: pairs that waited too long make way for the newest.
+      // Frames come faster than they are processed (the medians of the last few processing
+      // times and pair intervals): only the newest pair is worth processing. Otherwise the
+      // waiting pairs are caught up in order, except those that waited too long.
+      const bool overloaded =
+          processed_since_start_ >= kRateGrace && busy_ms_.size() >= kRateWindow &&
+          pair_intervals_ms_.size() >= kRateWindow &&
+          percentile(std::vector<double>(busy_ms_.begin(), busy_ms_.end()), 0.5) >
+              percentile(std::vector<double>(pair_intervals_ms_.begin(), pair_intervals_ms_.end()),
+                         0.5);
       const ros::WallTime now = ros::WallTime::now();
       while (backlog_.size() > 1 &&
-             (now - backlog_.front().arrival).toSec() > ros_params_.backlog_max_age_s) {
+             (overloaded ||
+              (now - backlog_.front().arrival).toSec() > ros_params_.backlog_max_age_s)) {
         backlog_.pop_front();
         ++stale;
       }
@@ -365,7 +384,11 @@ void Reconstruction::workerLoop() {
     }
     try {
       if (needsCameraInfo() && (!pair.left_info || !pair.right_info)) awaitCameraInfo(pair);
+      const ros::WallTime t0 = ros::WallTime::now();
       processPair(pair);
+      busy_ms_.push_back((ros::WallTime::now() - t0).toSec() * 1e3);
+      if (busy_ms_.size() > kRateWindow) busy_ms_.pop_front();
+      ++processed_since_start_;
     } catch (const std::exception& ex) {
       // The pipeline promises not to throw on bad input; this is the last line of defence that
       // keeps the nodelet (and the manager's other nodelets) alive if something does.

@@ -20,11 +20,13 @@
  *
  * Behaviour:
  * - Lazy: the inputs are subscribed only while some output has a subscriber.
- * - Bounded: one processing thread takes the pairs in order from a backlog of at most
- *   `~backlog_pairs`; a pair pushed out of a full backlog, or skipped because it waited longer
- *   than `~backlog_max_age_s` while a newer one waits, is counted as dropped. So a short stall
- *   is caught up without loss, sustained overload processes the newest pair, and nothing
- *   queues without limit.
+ * - Bounded: one processing thread takes the pairs from a backlog of at most `~backlog_pairs`.
+ *   While it keeps up with the input (median processing time of the last 8 pairs below the
+ *   median interval between pairs; always for the first 10 pairs) it takes them in order, so a
+ *   short stall such as the first frame's full-range search is caught up without loss; a pair
+ *   that waited longer than `~backlog_max_age_s` is skipped. When frames come faster than they
+ *   are processed it takes the newest and skips the others. Pairs pushed out of a full backlog
+ *   or skipped are counted as dropped. Nothing queues without limit.
  * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
  *   problem, counted as rejected, and the next good pair is processed.
  * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
@@ -42,7 +44,6 @@
 #include <deque>
 #include <memory>
 #include <mutex>
-#include <optional>
 #include <string>
 #include <thread>
 
@@ -161,8 +162,13 @@ class Reconstruction {
   std::mutex backlog_mutex_;
   std::condition_variable backlog_cv_;
   std::deque<Pair> backlog_;
+  ros::WallTime last_pair_arrival_;
+  std::deque<double> pair_intervals_ms_;  // the last few intervals between pairs
   bool shutdown_ = false;
   std::thread worker_;
+  // Worker thread only: the last few processing times, pairs processed (the overload test).
+  std::deque<double> busy_ms_;
+  int64_t processed_since_start_ = 0;
 
   // --- Parameters (params_mutex_): current and pending (swapped in between frames).
   mutable std::mutex params_mutex_;

@@ -29,15 +29,13 @@ struct RosParams {
   /// image is dropped by the synchroniser, never queued without limit.
   int queue_size = 5;
   /// Pairs waiting for the processing thread, in [1, 100]. A pair arriving while this many wait
-  /// pushes out the oldest (counted as dropped). 1 = only the newest pair waits (the lowest
-  /// latency); more lets a short stall (the first frame, which searches the full disparity range,
-  /// takes two to three frame periods) be caught up instead of losing the pairs that came during it.
+  /// pushes out the oldest (counted as dropped). 1 = only the newest pair waits; more lets a short
+  /// stall (the first frame, which searches the full disparity range, takes two to three frame
+  /// periods) be caught up instead of losing the pairs that came during it. While frames come
+  /// faster than they are processed only the newest is taken whatever this is (reconstruction.hpp).
   int backlog_pairs = 3;
   /// A waiting pair older than this (since it was paired) is skipped, counted as dropped, when a
-  /// newer pair waits too: under sustained overload the newest pair is processed and the latency
-  /// stays bounded, at about this age plus one frame's processing (with backlog_pairs 1, about
-  /// one and a half frames' processing). The start-up stall keeps pairs waiting about 0.1 s at
-  /// 25 fps on the reference machine. s, in (0, 10].
+  /// newer pair waits too: the most latency a catch-up may add. s, in (0, 10].
   double backlog_max_age_s = 0.15;
   /// Pair images by ApproximateTime (true) or ExactTime (false) synchronisation.
   bool approximate_sync = false;
