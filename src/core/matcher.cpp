@@ -2755,6 +2755,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   }
   out.stats.prior_pixels = prior_pixels;
   const bool uniform = !(range && !range->empty());
+  const auto t_prepared = std::chrono::steady_clock::now();
 
   const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
   im.open_rows.resize(H);
@@ -2788,6 +2789,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
         im.release(std::move(s));
       },
       num_stripes);
+  const auto t_matched = std::chrono::steady_clock::now();
   if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
     rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.tmp1, im.tmp2,
                          im.tmp3, im.tmp4, im.tmp5);
@@ -2851,6 +2853,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
   const auto t2 = std::chrono::steady_clock::now();
   out.stats.match_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
   out.stats.filter_ms = std::chrono::duration<double, std::milli>(t2 - t1).count();
+  out.stats.prepare_ms = std::chrono::duration<double, std::milli>(t_prepared - t0).count();
+  out.stats.edge_ms = std::chrono::duration<double, std::milli>(t1 - t_matched).count();
 }
 
 }  // namespace endo_stereo

@@ -461,6 +461,8 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
     j.key("rectify").value(f.rectify_ms);
     j.key("match").value(f.match_ms);
     j.key("match_only").value(f.match.match_ms);
+    j.key("match_prepare").value(f.match.prepare_ms);  // part of match_only
+    j.key("match_edge").value(f.match.edge_ms);        // part of match_only
     j.key("filter").value(f.match.filter_ms);
     j.key("temporal").value(f.temporal_ms);
     j.key("cloud").value(f.cloud_ms);

@@ -52,6 +52,9 @@ Options:
   --breakdown         per frame, where the bad pixels lie (instrument edge, highlight, ...)
   --levels            per frame, our matcher's outcome with priors: pixels searched with a narrowed
                       range, accepted per window size, rejected per criterion, match / filter ms
+  --stages            after the run: the median time of each stage of a frame with priors (range
+                      building, the matcher's preparation, search, edge measure and post-filters,
+                      the prior/fusion/coverage update), steady state
   --threads N         worker threads of our matcher (0 = OpenCV's default; default 1).
                       SGBM's MODE_SGBM runs on one thread whatever this says.
   --no-sgbm           skip the SGBM baseline
@@ -206,6 +209,7 @@ int main(int argc, char** argv) {
   int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
   bool breakdown = false;
   bool levels = false;
+  bool stages = false;
   bool run_sgbm = true, run_without = true, pipeline_stages = false, pipeline_cloud = true;
   bool async_quality = false;
   std::string out_dir;
@@ -243,6 +247,8 @@ int main(int argc, char** argv) {
       overrides.push_back(next());
     } else if (a == "--levels") {
       levels = true;
+    } else if (a == "--stages") {
+      stages = true;
     } else if (a == "--breakdown") {
       breakdown = true;
     } else if (a == "--threads") {
@@ -325,6 +331,8 @@ int main(int argc, char** argv) {
                                                         cv::StereoSGBM::MODE_SGBM);
 
   Timing t_with, t_without, t_sgbm;
+  // --stages: begin, prepare, search, edge, filters, compute's rest, second search, end, total.
+  Timing stage_ms[9];
   Score s_with, s_without, s_sgbm, s_fused, s_with_narrowed, s_with_full;
   int64_t narrowed = 0, hits = 0, fallbacks = 0, deferred = 0, searched = 0;
   double width_sum = 0;
@@ -345,10 +353,25 @@ int main(int argc, char** argv) {
     // 1. with priors (timed: range building + matching + post-filter + prior/fusion/coverage update)
     auto t0 = std::chrono::steady_clock::now();
     const endo_stereo::SearchRange* range = tracker_with.beginFrame(info);
+    const double ms_begin = msSince(t0);
     matcher_with.compute(l, r, res_with, range);
+    const double ms_computed = msSince(t0);
     if (range && tracker_with.rejectPriors(res_with.disparity)) matcher_with.compute(l, r, res_with, nullptr);
+    const double ms_rejected = msSince(t0);
     tracker_with.endFrame(res_with.disparity, true, true);
     const double ms_with = msSince(t0);
+    if (i >= warmup) {
+      const endo_stereo::MatchStats& st = res_with.stats;
+      stage_ms[0].ms.push_back(ms_begin);
+      stage_ms[1].ms.push_back(st.prepare_ms);
+      stage_ms[2].ms.push_back(st.match_ms - st.prepare_ms - st.edge_ms);
+      stage_ms[3].ms.push_back(st.edge_ms);
+      stage_ms[4].ms.push_back(st.filter_ms);
+      stage_ms[5].ms.push_back(ms_computed - ms_begin - st.match_ms - st.filter_ms);
+      stage_ms[6].ms.push_back(ms_rejected - ms_computed);
+      stage_ms[7].ms.push_back(ms_with - ms_rejected);
+      stage_ms[8].ms.push_back(ms_with);
+    }
     // 2. without priors
     double ms_without = 0;
     if (run_without) {
@@ -488,6 +511,16 @@ int main(int argc, char** argv) {
                 cov_with.central_never, cov_without.central_share, cov_without.overall_share,
                 cov_without.central_never);
   std::cout << buf;
+  if (stages) {
+    static const char* const names[9] = {
+        "ranges from the priors (beginFrame)", "matcher: preparation (buffers, views, integrals)",
+        "matcher: search (all window sizes)", "matcher: edge measure", "matcher: post-filters",
+        "matcher: rest (counts, buffers)", "second search (priors rejected: scene change)",
+        "prior / fusion / coverage update (endFrame)", "total with priors"};
+    std::printf("stages of a frame with priors, median of frames %d..%d (ms; the medians do not add "
+                "up exactly):\n", warmup, frames - 1);
+    for (int k = 0; k < 9; ++k) std::printf("  %-50s %7.2f\n", names[k], stage_ms[k].median());
+  }
   if (breakdown) {
     std::printf("bad pixels after warm-up (instrument edge, highlight, instrument, other): with priors "
                 "%lld %lld %lld %lld, without %lld %lld %lld %lld\n",
