@@ -168,8 +168,9 @@ text = "\n".join([
     "",
     "Latency: from the left image's arrival at a listener node to the arrival of the disparity"
     " with the same stamp at that listener. Output rate: disparities over the input's duration."
-    " Dropped: input pairs without an output (endo_stereo keeps the newest pair and counts the"
-    " pairs it replaced; stereo_image_proc drops inside its synchronizer and queues).",
+    " Dropped: input pairs without an output (endo_stereo counts the pairs pushed out of its"
+    " backlog or skipped for a newer one; stereo_image_proc drops inside its synchronizer and"
+    " queues).",
     *pipeline_notes,
     ""])
 os.makedirs(os.path.dirname(notes), exist_ok=True)
