@@ -181,7 +181,7 @@ lines = [
     "## Real time: rosbag play at 25 fps",
     "| figure | value |", "|---|---|",
     "| pairs in / disparities out | %s / %s |" % (r.get("pairs_in"), r.get("outputs")),
-    "| dropped (newest pair kept), from the nodelet's diagnostics | %s |" % diag.get("pairs dropped", "n/a"),
+    "| dropped (pushed out of the backlog or skipped for a newer pair), from the nodelet's diagnostics | %s |" % diag.get("pairs dropped", "n/a"),
     "| rejected | %s |" % diag.get("pairs rejected", "n/a"),
     "| output rate over the input's duration | %s Hz |" % f(r.get("output_rate_over_input_span_hz")),
     "| latency median / p90 (left image received -> disparity received) | %s / %s ms |"
