@@ -1,11 +1,12 @@
-// rostest (test/ros/nodelet_synthetic.test): a real master, a nodelet manager and several
-// endo_stereo/reconstruction nodelets, fed a synthetic calibrated surgical pair with exact ground
-// truth. Every wait has a timeout; nothing relies on a fixed sleep.
+// rostest (test/ros/nodelet_synthetic.test, and nodelet_backlog.test for the Backlog tests): a
+// real master, a nodelet manager and several endo_stereo/reconstruction nodelets, fed a synthetic
+// calibrated surgical pair with exact ground truth. Every wait has a timeout; nothing relies on a
+// fixed sleep.
 //
-// Namespaces (see the .test file): /stereo (exact sync), /approx (approximate sync),
-// /bad (bad-input sequence), /tf and /tf_missing (target_frame with and without a transform),
+// Namespaces (see the .test files): /stereo (exact sync), /approx (approximate sync),
+// /bad (bad-input sequence), /tf and /tf_missing (target_frame with and without a transform);
 // /backlog, /newest, /stale and /overload (the backlog between the callbacks and the processing
-// thread).
+// thread, nodelet_backlog.test).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
