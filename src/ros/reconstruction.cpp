@@ -2,6 +2,7 @@
 #include "endo_stereo/ros/reconstruction.hpp"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -37,6 +38,17 @@ double percentile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
   const size_t k = static_cast<size_t>(std::round(q * (v.size() - 1)));
   std::nth_element(v.begin(), v.begin() + k, v.end());
+  return v[k];
+}
+
+// Median of one of the backlog's rate windows (at most kRateWindow values, not empty), the same
+// element percentile(v, 0.5) picks, without copying into a vector on every pair.
+double windowMedian(const std::deque<double>& d) {
+  std::array<double, kRateWindow> v{};
+  const size_t n = std::min(d.size(), kRateWindow);
+  std::copy_n(d.begin(), n, v.begin());
+  const size_t k = static_cast<size_t>(std::round(0.5 * (n - 1)));
+  std::nth_element(v.begin(), v.begin() + k, v.begin() + n);
   return v[k];
 }
 
@@ -365,9 +377,7 @@ void Reconstruction::workerLoop() {
       const bool overloaded =
           processed_since_start_ >= kRateGrace && busy_ms_.size() >= kRateWindow &&
           pair_intervals_ms_.size() >= kRateWindow &&
-          percentile(std::vector<double>(busy_ms_.begin(), busy_ms_.end()), 0.5) >
-              percentile(std::vector<double>(pair_intervals_ms_.begin(), pair_intervals_ms_.end()),
-                         0.5);
+          windowMedian(busy_ms_) > windowMedian(pair_intervals_ms_);
       const ros::WallTime now = ros::WallTime::now();
       while (backlog_.size() > 1 &&
              (overloaded ||
