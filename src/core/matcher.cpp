@@ -98,6 +98,22 @@ struct RowMaps {
   std::vector<int> stamp_l, stamp_r, stamp_gl, stamp_gr;  // sparse rows: computed for this stamp
 };
 
+/// Layout of the dense engine's right-to-left trackers (lanePass2), 8 copies of `used` floats
+/// for the values and 8 for the disparities, chosen against 4K aliasing: a load whose address
+/// matches an earlier, still pending store's in the low 12 bits waits as if it depended on it.
+/// A pixel's tracker groups span up to 288 bytes of its copy; the next pixel uses the next copy
+/// 4 bytes lower. The copy stride is 1028 bytes mod 4 KiB, so the next 3 pixels' copies lie 1, 2
+/// and 3 KiB away (mod 4 KiB) from this one's; the disparities lie 512 bytes (mod 4 KiB) after
+/// the values, so no copy within 3 pixels overlaps another's stores there either. Layout only:
+/// the values computed are the same.
+inline void layoutTrackers(int used, int* stride, int* d_off) {
+  *stride = (used / 1024) * 1024 + 257;
+  if (*stride < used) *stride += 1024;
+  const int values = 8 * *stride;
+  *d_off = (values / 1024) * 1024 + 128;
+  if (*d_off < values) *d_off += 1024;
+}
+
 /// Scratch of one worker, reused between rows, stripes, levels and frames.
 struct Scratch {
   int width = 0;
@@ -145,7 +161,12 @@ struct Scratch {
   // Reversed, padded row arrays (index rpad + W - 1 - q for right column q, so that q = x - d for
   // increasing d is contiguous): right statistics and the right-to-left tracker.
   int rpad = 0;
-  std::vector<float> srr, irr, rbv_rev, rbd_rev, hrow, lprof, lmbuf;
+  std::vector<float> srr, irr, hrow, lprof, lmbuf;
+  // The dense engine's right-to-left trackers (lanePass2): 8 copies of the best values, then 8 of
+  // their disparities, in one buffer laid out by layoutTrackers.
+  std::vector<float> rb_buf;
+  int rb_stride = 0;  // floats from one copy to the next
+  int rb_d_off = 0;   // floats from the values' first copy to the disparities' first copy
   // Row state.
   RowMaps maps;
   std::vector<float> elo, ehi, act;  // effective range and activity of this row, as float
@@ -228,7 +249,8 @@ struct Scratch {
     // inside the image, groups round them by at most 7).
     rpad = 8;
     for (auto* vec : {&srr, &irr}) vec->assign(rpad + w + 16, 0.f);
-    for (auto* vec : {&rbv_rev, &rbd_rev}) vec->assign(8 * static_cast<size_t>(rpad + w + 16), 0.f);
+    layoutTrackers(rpad + w + 16, &rb_stride, &rb_d_off);
+    rb_buf.assign(static_cast<size_t>(rb_d_off) + 8 * static_cast<size_t>(rb_stride), 0.f);
     vl_g0.assign(w, 0);
     vl_g1.assign(w, -1);
     span_lo.assign(w, 0);
@@ -1824,9 +1846,13 @@ void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
   const int rp = s.rpad;
   std::fill(s.srr.begin(), s.srr.end(), 0.f);
   std::fill(s.irr.begin(), s.irr.end(), 0.f);
-  std::fill(s.rbv_rev.begin(), s.rbv_rev.end(), kNegInf);
-  std::fill(s.rbd_rev.begin(), s.rbd_rev.end(), 0.f);
-  const int stride = rp + W + 16;
+  const int used = rp + W + 16, stride = s.rb_stride;
+  float* const rbv = s.rb_buf.data();
+  float* const rbd = rbv + s.rb_d_off;
+  for (int c = 0; c < 8; ++c) {
+    std::fill_n(rbv + static_cast<size_t>(c) * stride, used, kNegInf);
+    std::fill_n(rbd + static_cast<size_t>(c) * stride, used, 0.f);
+  }
   for (int q = r; q <= W - 1 - r; ++q) {
     s.srr[rp + W - 1 - q] = s.maps.sum_r[q];
     s.irr[rp + W - 1 - q] = s.maps.inv_r[q];
@@ -1858,8 +1884,8 @@ void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
   a.inv_l = s.maps.inv_l.data();
   a.srr = s.srr.data();
   a.irr = s.irr.data();
-  a.rbv = s.rbv_rev.data();
-  a.rbd = s.rbd_rev.data();
+  a.rbv = rbv;
+  a.rbd = rbd;
   a.h = s.hrow.data();
   a.prof = s.lprof.data() + 8;
   a.best = s.best.data();
@@ -1870,8 +1896,8 @@ void denseLanesRow(const LevelContext& c, Scratch& s, int y) {
   lanePass1(a);
   s.vl_row = y;
   lanePass2(a);
-  laneMergeTrackers(s.rbv_rev.data(), s.rbd_rev.data(), stride, rp + W + 16);
-  for (int q = 0; q < W; ++q) s.rb_d[q] = s.rbd_rev[rp + W - 1 - q];
+  laneMergeTrackers(rbv, rbd, stride, used);
+  for (int q = 0; q < W; ++q) s.rb_d[q] = rbd[rp + W - 1 - q];
 }
 
 /// Profiles of the active pixels of row y (phase A), from per-column sums.

@@ -58,6 +58,7 @@ Usage: endo_stereo_bench [options]
   --json FILE       machine-readable results (default: ROOT/docs/benchmark_results.json)
   --curve FILE      precision-density sweep as CSV (default: ROOT/docs/precision_density.csv)
   --quick           1 repetition, a short sweep, no memory probe (a smoke test)
+  --timing-only     only the 960x540 timing table (printed; no scoring, no files written)
   --help
 )";
 
@@ -68,6 +69,7 @@ struct Options {
   std::string curve;
   int repeats = 5;
   bool quick = false;
+  bool timing_only = false;
 };
 
 double processCpuMs() {
@@ -531,6 +533,8 @@ int main(int argc, char** argv) {
       o.curve = need();
     } else if (a == "--quick") {
       o.quick = true;
+    } else if (a == "--timing-only") {
+      o.timing_only = true;
     } else {
       std::cerr << "endo_stereo_bench: unknown argument '" << a << "' (see --help)\n";
       return 2;
@@ -569,7 +573,9 @@ int main(int argc, char** argv) {
   // --- 1. accuracy and speed on scenes with ground truth --------------------------------------
   std::vector<Scene> scenes;
   bool have_middlebury = false;
-  if (!dirExists(o.data)) {
+  if (o.timing_only) {
+    // Only the timing case below: no Middlebury scenes to load.
+  } else if (!dirExists(o.data)) {
     std::printf(
         "SKIP Middlebury: data not found at %s (expected ../shared/data/middlebury "
         "beside the repository); scoring synthetic scenes only\n\n",
@@ -591,14 +597,16 @@ int main(int argc, char** argv) {
   std::vector<Method> methods = {ourMethod("ours (default)", preset_default),
                                  ourMethod("ours (paper)", preset_paper), bmMethod(),
                                  sgbmMethod("OpenCV SGBM"), quasiDenseMethod()};
-  std::printf("## Accuracy (nonocc mask; errors among output pixels) and time\n\n");
   std::vector<Row> all_rows;
-  for (const Scene& s : scenes) {
-    std::fprintf(stderr, "scoring %s ...\n", s.name.c_str());
-    const std::vector<Row> rows = runScene(s, methods, o.repeats);
-    all_rows.insert(all_rows.end(), rows.begin(), rows.end());
+  if (!o.timing_only) {
+    std::printf("## Accuracy (nonocc mask; errors among output pixels) and time\n\n");
+    for (const Scene& s : scenes) {
+      std::fprintf(stderr, "scoring %s ...\n", s.name.c_str());
+      const std::vector<Row> rows = runScene(s, methods, o.repeats);
+      all_rows.insert(all_rows.end(), rows.begin(), rows.end());
+    }
+    printRows(all_rows);
   }
-  printRows(all_rows);
   j.key("middlebury_found").value(have_middlebury);
   j.key("accuracy");
   writeRows(j, all_rows);
@@ -655,6 +663,7 @@ int main(int argc, char** argv) {
                 100 * r.nonocc.bad2, 100 * r.nonocc.density);
   }
   std::printf("(load average after the timing: %s)\n", loadAverage().c_str());
+  if (o.timing_only) return 0;
   j.key("timing_960x540");
   writeRows(j, timing_rows);
 
