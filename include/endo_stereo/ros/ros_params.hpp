@@ -38,7 +38,7 @@ struct RosParams {
   /// newer pair waits too: the most latency a catch-up may add. s, in (0, 10]. At 25 fps a
   /// backlog of 3 already bounds the wait at about 4 frame periods (160 ms); 0.25 s lets it
   /// catch up the start-up stall without skipping pairs, and bounds the wait of slower streams.
-  /// (0.15 s skipped 2 pairs in 1 of 4 30-frame runs at 25 fps, where the wait reached 150 ms.)
+  /// (0.15 s skipped 2 pairs in 2 of 4 30-frame runs at 25 fps, where the wait reached 150 ms.)
   double backlog_max_age_s = 0.25;
   /// Pair images by ApproximateTime (true) or ExactTime (false) synchronisation.
   bool approximate_sync = false;
