@@ -356,18 +356,20 @@ int main(int argc, char** argv) {
     const double ms_begin = msSince(t0);
     matcher_with.compute(l, r, res_with, range);
     const double ms_computed = msSince(t0);
+    // The stage split is that of the search with priors, also when a second search follows.
+    const double st_prepare = res_with.stats.prepare_ms, st_edge = res_with.stats.edge_ms;
+    const double st_match = res_with.stats.match_ms, st_filter = res_with.stats.filter_ms;
     if (range && tracker_with.rejectPriors(res_with.disparity)) matcher_with.compute(l, r, res_with, nullptr);
     const double ms_rejected = msSince(t0);
     tracker_with.endFrame(res_with.disparity, true, true);
     const double ms_with = msSince(t0);
     if (i >= warmup) {
-      const endo_stereo::MatchStats& st = res_with.stats;
       stage_ms[0].ms.push_back(ms_begin);
-      stage_ms[1].ms.push_back(st.prepare_ms);
-      stage_ms[2].ms.push_back(st.match_ms - st.prepare_ms - st.edge_ms);
-      stage_ms[3].ms.push_back(st.edge_ms);
-      stage_ms[4].ms.push_back(st.filter_ms);
-      stage_ms[5].ms.push_back(ms_computed - ms_begin - st.match_ms - st.filter_ms);
+      stage_ms[1].ms.push_back(st_prepare);
+      stage_ms[2].ms.push_back(st_match - st_prepare - st_edge);
+      stage_ms[3].ms.push_back(st_edge);
+      stage_ms[4].ms.push_back(st_filter);
+      stage_ms[5].ms.push_back(ms_computed - ms_begin - st_match - st_filter);
       stage_ms[6].ms.push_back(ms_rejected - ms_computed);
       stage_ms[7].ms.push_back(ms_with - ms_rejected);
       stage_ms[8].ms.push_back(ms_with);
