@@ -552,14 +552,28 @@ void Reconstruction::processPair(const Pair& pair) {
   in.left_encoding = pair.left->encoding;
   in.right_encoding = pair.right->encoding;
   in.stamp_s = stamp.toSec();
+  const ros::WallTime t_process = ros::WallTime::now();
   if (!pipeline_->process(in, out_, &error)) {
     reject("pair", error);
     return;
   }
   last_stamp_ = stamp;
+  const ros::WallTime t_publish = ros::WallTime::now();
   publishOutputs(pair, out_);
+  const ros::WallTime t_done = ros::WallTime::now();
 
-  const double latency_ms = (ros::WallTime::now() - pair.arrival).toSec() * 1e3;
+  const double latency_ms = (t_done - pair.arrival).toSec() * 1e3;
+  if (!first_pair_logged_) {
+    // The first pair is the slowest (full-range search, fresh buffers, threads started): say
+    // where its time went, once, since the pairs behind it wait for it.
+    first_pair_logged_ = true;
+    ROS_INFO("%s: first pair out %.1f ms after it arrived: waited %.1f, pipeline %.1f "
+             "(preprocess %.1f, rectify %.1f, match %.1f, temporal %.1f, cloud %.1f), "
+             "publishing %.1f ms; later pairs are faster",
+             name_.c_str(), latency_ms, (t_process - pair.arrival).toSec() * 1e3,
+             out_.total_ms, out_.preprocess_ms, out_.rectify_ms, out_.match_ms, out_.temporal_ms,
+             out_.cloud_ms, (t_done - t_publish).toSec() * 1e3);
+  }
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++counters_.pairs_processed;
   latencies_ms_.push_back(latency_ms);

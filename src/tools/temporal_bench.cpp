@@ -165,7 +165,15 @@ int runPipelineStages(endo_stereo::SurgicalScene& scene, endo_stereo::PipelinePa
     hashMat(out.match.disparity, &h_disp);
     hashMat(out.cloud.xyz, &h_cloud);
     hashMat(out.cloud.bgr, &h_cloud);
-    if (i < warmup) continue;
+    if (i < warmup) {
+      // The start-up frames, one by one: what a node's first pairs cost.
+      std::printf("  start-up frame %d: total %7.2f ms (preprocess %.2f, rectify %.2f, temporal "
+                  "%.2f, match %.2f [preparation %.2f, edge %.2f, filters %.2f], cloud %.2f)\n",
+                  i, out.total_ms, out.preprocess_ms, out.rectify_ms, out.temporal_ms,
+                  out.match_ms, out.match.stats.prepare_ms, out.match.stats.edge_ms,
+                  out.match.stats.filter_ms, out.cloud_ms);
+      continue;
+    }
     pre.ms.push_back(out.preprocess_ms);
     rect.ms.push_back(out.rectify_ms);
     temporal.ms.push_back(out.temporal_ms);

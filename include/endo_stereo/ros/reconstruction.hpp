@@ -182,6 +182,7 @@ class Reconstruction {
   bool has_calibration_ = false;
   ros::Time last_stamp_;
   bool warned_not_metric_ = false;
+  bool first_pair_logged_ = false;  // the first pair's timings went to the log
 
   // --- Figures (stats_mutex_).
   mutable std::mutex stats_mutex_;
