@@ -10,6 +10,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "simd.hpp"
 #include "uncalibrated_rectification.hpp"
 
 #ifdef __linux__
@@ -153,6 +154,45 @@ constexpr int kPatchMaxDy = 8;       // vertical search +-8 px; larger offsets r
 constexpr float kPatchMinNcc = 0.8f;  // least ZNCC of a used match
 constexpr float kPatchMinGap = 0.05f;  // over the best match 3 or more disparities away
 constexpr double kPatchMinGradSq = 9.0;  // least mean squared gradient, both directions
+constexpr int kPatchSide = 2 * kPatchHalf + 1;
+
+// The sums a ZNCC needs for right patches side by side: band holds kPatchSide rows of pixel
+// values (as floats, row stride `stride`), and the patch whose top-left pixel is band[j] gets
+// s[j] = its pixel sum, s2[j] = its sum of squares and cross[j] = the sum over k of lp[k] times
+// its pixel k (lp: the zero-mean left patch, row by row), for j < 8 * blocks (band is padded for
+// whole vectors). The pixel sums are integers below 2^24, exact in float; cross is summed in the
+// order of k, as a loop over one patch at a time would (the core builds with
+// -ffp-contract=off), so no value depends on the vectors. Four vectors of patches at a time:
+// independent chains of additions.
+ES_KERNEL void patchSums(const float* band, int stride, const float* lp, int blocks, float* cross,
+                         float* s, float* s2) {
+  using namespace simd;
+  constexpr int kGroup = 4;
+  for (int b0 = 0; b0 < blocks; b0 += kGroup) {
+    const int nb = std::min(kGroup, blocks - b0);
+    V8f c[kGroup], a1[kGroup], a2[kGroup];
+    for (int g = 0; g < kGroup; ++g) c[g] = a1[g] = a2[g] = splat8(0.f);
+    for (int dy = 0, k = 0; dy < kPatchSide; ++dy) {
+      const float* r = band + dy * stride + b0 * 8;
+      for (int dx = 0; dx < kPatchSide; ++dx, ++k) {
+        const V8f w = splat8(lp[k]);
+        for (int g = 0; g < kGroup; ++g) {
+          if (g < nb) {
+            const V8f a = load8(r + dx + 8 * g);
+            a1[g] += a;
+            a2[g] += a * a;
+            c[g] += w * a;
+          }
+        }
+      }
+    }
+    for (int g = 0; g < nb; ++g) {
+      store8(cross + (b0 + g) * 8, c[g]);
+      store8(s + (b0 + g) * 8, a1[g]);
+      store8(s2 + (b0 + g) * 8, a2[g]);
+    }
+  }
+}
 
 }  // namespace
 
@@ -233,6 +273,12 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
   int textured = 0;  // cells with a textured patch
   std::vector<float> lp(size_t(n), 0.f);
   std::vector<float> ncc;
+  // The band of right pixels a patch is searched in, and one offset's sums for every disparity
+  // (patchSums), in whole vectors.
+  const int nd_pad = (std::max(0, max_disparity - min_disparity + 1) + 7) / 8 * 8;
+  const int band_rows = 2 * (V + h) + 1, band_stride = nd_pad + 2 * h + 8;
+  std::vector<float> band(static_cast<size_t>(band_rows) * band_stride);
+  std::vector<float> cross(static_cast<size_t>(nd_pad)), rs(cross), rs2(cross);
   for (int cy = y_lo; cy <= y_hi; cy += cell) {
     for (int cx = x_lo; cx <= x_hi; cx += cell) {
       int bx = -1, by = -1;
@@ -270,25 +316,24 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
         }
       }
       if (!(lnorm2 > 0.0)) continue;
-      // ZNCC over every vertical offset and disparity.
+      // ZNCC over every vertical offset and disparity. The right patches of all of them lie in
+      // one band of rows and columns, widened to floats once: rows by - V - h .. by + V + h,
+      // columns from bx - d_hi - h, the patch at column bx - d_hi first (j = d_hi - d).
+      const int blocks = (nd + 7) / 8;
+      for (int y = 0; y < band_rows; ++y) {
+        const uint8_t* src = right_gray.ptr<uint8_t>(by - V - h + y) + (bx - d_hi - h);
+        float* dst = band.data() + size_t(y) * band_stride;
+        for (int x = 0; x < nd + 2 * h; ++x) dst[x] = src[x];
+        std::fill(dst + nd + 2 * h, dst + band_stride, 0.f);
+      }
       ncc.assign(size_t((2 * V + 1) * nd), -1.f);
       for (int v = -V; v <= V; ++v) {
-        for (int d = d_lo; d <= d_hi; ++d) {
-          const int rx = bx - d, ry = by + v;
-          int rs = 0, rs2 = 0;  // exact: at most 121 * 255^2
-          float cross = 0.f;
-          for (int dy = -h, k = 0; dy <= h; ++dy) {
-            const uint8_t* r = right_gray.ptr<uint8_t>(ry + dy) + rx;
-            for (int dx = -h; dx <= h; ++dx, ++k) {
-              const int a = r[dx];
-              rs += a;
-              rs2 += a * a;
-              cross += lp[size_t(k)] * float(a);
-            }
-          }
-          const double var = double(rs2) - double(rs) * rs / n;
-          ncc[size_t((v + V) * nd + (d - d_lo))] =
-              var > 0.0 ? float(cross / std::sqrt(lnorm2 * var)) : -1.f;
+        patchSums(band.data() + size_t(v + V) * band_stride, band_stride, lp.data(), blocks,
+                  cross.data(), rs.data(), rs2.data());
+        for (int j = 0; j < nd; ++j) {
+          const double var = double(rs2[size_t(j)]) - double(rs[size_t(j)]) * rs[size_t(j)] / n;
+          ncc[size_t((v + V) * nd + (nd - 1 - j))] =
+              var > 0.0 ? float(cross[size_t(j)] / std::sqrt(lnorm2 * var)) : -1.f;
         }
       }
       int bv = 0, bd = 0;
