@@ -97,7 +97,7 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   e = params.validate();
   if (!e.empty()) throw std::invalid_argument(e);
   pipeline_ = std::make_unique<Pipeline>(params);
-  // The rectification residual (a patch search every quality_stride frames, about 12 ms of one
+  // The rectification residual (a patch search every quality_stride frames, about 13 ms of one
   // core at 960x540) is a diagnostic: measured beside the processing at the lowest priority, not
   // inside a frame. (Uncalibrated mode still matches SIFT inline while it pools an estimate.)
   pipeline_->setAsyncRectificationQuality(true);

@@ -262,7 +262,7 @@ class StereoRectifier {
   void reset();
 
   /**
-   * Measure the quality (measureRowAlignmentPatches, about 12 ms at 960x540) on a background
+   * Measure the quality (measureRowAlignmentPatches, about 13 ms at 960x540) on a background
    * thread at the lowest priority instead of inside rectify() (default false: inside). The
    * rectified images do not wait for it, only quality() does: it then reports the measurement
    * of an earlier frame (frame_index says which) once it is done, and a stride's measurement is
