@@ -10,6 +10,7 @@
 #include <opencv2/imgcodecs.hpp>
 #include <opencv2/imgproc.hpp>
 #include <string>
+#include <utility>
 #include <vector>
 
 #include "endo_stereo/core/calibration_io.hpp"
@@ -290,6 +291,17 @@ TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
     ASSERT_TRUE(q.valid) << q.message;
     EXPECT_GE(q.num_matches, 100);
     EXPECT_NEAR(q.median_offset_px, dy, 0.15);
+    // Other ranges: the true disparity in each of the four vectors of a pass (the sums go eight
+    // disparities to a vector, four vectors at a time), in a second pass, and in a range of
+    // fewer disparities than a vector holds: the same offset.
+    for (const auto& r : {std::make_pair(0, 24), std::make_pair(0, 31), std::make_pair(0, 39),
+                          std::make_pair(0, 47), std::make_pair(0, 60), std::make_pair(0, 95),
+                          std::make_pair(17, 23)}) {
+      const RectificationQuality qr = measureRowAlignmentPatches(left, right, r.first, r.second, 300);
+      ASSERT_TRUE(qr.valid) << r.first << ".." << r.second << ": " << qr.message;
+      EXPECT_GE(qr.num_matches, 100) << r.first << ".." << r.second;
+      EXPECT_NEAR(qr.median_offset_px, dy, 0.15) << r.first << ".." << r.second;
+    }
     // The disparity range must hold the match: [25, 40] cuts off disparity 20.
     EXPECT_FALSE(measureRowAlignmentPatches(left, right, 25, 40, 300).valid);
   }
