@@ -13,9 +13,20 @@
 #   export ROS_PACKAGE_PATH="$(scripts/stereo_image_proc_env.sh /tmp/sip_pkgs)"
 #   /usr/lib/stereo_image_proc/stereo_image_proc __ns:=stereo      # the Debian node, or
 #   rosrun nodelet nodelet load stereo_image_proc/disparity MANAGER ...
+#   scripts/stereo_image_proc_env.sh --exec COMMAND [ARGS]  # COMMAND run with that path (DIR is
+#       ${TMPDIR:-/tmp}/endo_stereo_sip_pkgs_<uid>); a launch file's launch-prefix, so that a
+#       nodelet manager can load stereo_image_proc's nodelets (test/ros/stereo_image_proc.test)
 # Idempotent: running it again rewrites the same files.
 set -euo pipefail
-dir="${1:?usage: $0 DIR (scratch folder for the plugin descriptions)}"
+exec_mode=0
+if [ "${1:-}" = "--exec" ]; then
+  exec_mode=1
+  shift
+  [ $# -gt 0 ] || { echo "usage: $0 --exec COMMAND [ARGS]" >&2; exit 2; }
+  dir="${TMPDIR:-/tmp}/endo_stereo_sip_pkgs_$(id -u)"
+else
+  dir="${1:?usage: $0 DIR (scratch folder for the plugin descriptions) | --exec COMMAND [ARGS]}"
+fi
 mkdir -p "$dir"
 dir="$(cd "$dir" && pwd)"
 
@@ -82,9 +93,14 @@ write_package image_proc libimage_proc \
 rm -f "${ROS_HOME:-$HOME/.ros}/rospack_cache"* 2>/dev/null || true
 if [ -n "${ROS_PACKAGE_PATH:-}" ]; then
   case ":$ROS_PACKAGE_PATH:" in
-    *":$dir:"*) echo "$ROS_PACKAGE_PATH" ;;
-    *) echo "$dir:$ROS_PACKAGE_PATH" ;;
+    *":$dir:"*) path="$ROS_PACKAGE_PATH" ;;
+    *) path="$dir:$ROS_PACKAGE_PATH" ;;
   esac
 else
-  echo "$dir:/usr/share"
+  path="$dir:/usr/share"
 fi
+if [ "$exec_mode" = 1 ]; then
+  export ROS_PACKAGE_PATH="$path"
+  exec "$@"
+fi
+echo "$path"

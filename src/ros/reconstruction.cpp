@@ -136,19 +136,86 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   diag_timer_ = nh_.createWallTimer(ros::WallDuration(ros_params_.diagnostics_period_s),
                                     [this](const ros::WallTimerEvent&) { updater_.force_update(); });
 
+  advertiseOutputs();
+}
+
+void Reconstruction::advertiseOutputs() {
+  // The resolved input names (remappings applied): no output may take one of them, or the node
+  // would feed itself (its own subscription keeping it subscribed, its images counted as input).
+  std::vector<std::string> inputs = {nh_.resolveName(left_topic_), nh_.resolveName(right_topic_)};
+  if (usesCameraInfo()) {
+    inputs.push_back(nh_.resolveName("left/camera_info"));
+    inputs.push_back(nh_.resolveName("right/camera_info"));
+  }
+  std::vector<std::string> refused;
+  auto allowed = [&](const std::string& name) {
+    if (std::find(inputs.begin(), inputs.end(), nh_.resolveName(name)) == inputs.end()) {
+      outputs_.push_back(name);
+      return true;
+    }
+    refused.push_back(name);
+    ROS_WARN("%s: output %s is not advertised: %s is also an input (check the remappings)",
+             name_.c_str(), name.c_str(), nh_.resolveName(name).c_str());
+    return false;
+  };
   // Advertise under the connect mutex: a connect callback fired by the first advertise must not
   // look at publishers that are not assigned yet (stereo_image_proc does the same).
   std::lock_guard<std::mutex> lock(connect_mutex_);
   ros::SubscriberStatusCallback cb = boost::bind(&Reconstruction::connectCb, this);
   image_transport::SubscriberStatusCallback icb = boost::bind(&Reconstruction::connectCb, this);
-  pub_disparity_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity", 1, cb, cb);
-  pub_points_ = nh_.advertise<sensor_msgs::PointCloud2>("points2", 1, cb, cb);
-  pub_fused_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity_fused", 1, cb, cb);
-  pub_disparity_color_ = it_.advertise("disparity_color", 1, icb, icb);
-  pub_confidence_ = it_.advertise("confidence", 1, icb, icb);
-  pub_coverage_ = it_.advertise("coverage", 1, icb, icb);
-  pub_left_rect_ = it_.advertise("left/image_rect_color", 1, icb, icb);
-  pub_right_rect_ = it_.advertise("right/image_rect", 1, icb, icb);
+  if (allowed("disparity")) {
+    pub_disparity_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity", 1, cb, cb);
+  }
+  if (allowed("points2")) {
+    pub_points_ = nh_.advertise<sensor_msgs::PointCloud2>("points2", 1, cb, cb);
+  }
+  if (allowed("disparity_fused")) {
+    pub_fused_ = nh_.advertise<stereo_msgs::DisparityImage>("disparity_fused", 1, cb, cb);
+  }
+  if (allowed("disparity_color")) pub_disparity_color_ = it_.advertise("disparity_color", 1, icb, icb);
+  if (allowed("confidence")) pub_confidence_ = it_.advertise("confidence", 1, icb, icb);
+  if (allowed("coverage")) pub_coverage_ = it_.advertise("coverage", 1, icb, icb);
+  if (mode_ == RectifyMode::kPassThrough) {
+    // The input is the rectified pair: a rectified-image output would repeat it, under the very
+    // name of the right input (right/image_rect).
+    outputs_note_ = "no rectified images: the input is already rectified";
+  } else {
+    if (allowed("left/image_rect_color")) {
+      pub_left_rect_ = it_.advertise("left/image_rect_color", 1, icb, icb);
+    }
+    if (allowed("right/image_rect")) pub_right_rect_ = it_.advertise("right/image_rect", 1, icb, icb);
+  }
+  for (const std::string& r : refused) {
+    outputs_note_ += (outputs_note_.empty() ? "" : "; ") + r + " not advertised (an input)";
+  }
+}
+
+std::string Reconstruction::describe() const {
+  std::ostringstream m;
+  m << "input " << nh_.resolveName(left_topic_) << " and " << nh_.resolveName(right_topic_);
+  if (ros_params_.image_transport != "raw") m << " (transport " << ros_params_.image_transport << ")";
+  if (usesCameraInfo()) {
+    m << (needsCameraInfo() ? " with " : " with optional ") << nh_.resolveName("left/camera_info")
+      << " and " << nh_.resolveName("right/camera_info");
+  }
+  m << "; rectify mode " << toString(mode_) << ", "
+    << (ros_params_.approximate_sync ? "approximate" : "exact") << " sync";
+  if (ros_params_.approximate_sync) m << " within " << ros_params_.sync_tolerance_s << " s";
+  m << ", queue " << ros_params_.queue_size;
+  {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    m << "; disparity range " << params_.matcher.min_disparity << ".."
+      << params_.matcher.max_disparity << " ("
+      << params_.matcher.max_disparity - params_.matcher.min_disparity + 1 << " values)";
+    m << "; outputs";
+    for (size_t i = 0; i < outputs_.size(); ++i) {
+      const std::string& o = outputs_[i];
+      m << (i ? ", " : " ") << o;
+      if (o == "points2" && !params_.output.point_cloud) m << " (off: output/point_cloud false)";
+    }
+  }
+  if (!outputs_note_.empty()) m << " (" << outputs_note_ << ")";
+  return m.str();
 }
 
 Reconstruction::~Reconstruction() {
@@ -226,6 +293,10 @@ void Reconstruction::subscribeInputs() {
     right_info_sub_ = nh_.subscribe<sensor_msgs::CameraInfo>(
         "right/camera_info", ros_params_.queue_size,
         boost::bind(&Reconstruction::infoCb, this, false, boost::placeholders::_1));
+  }
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    subscribed_since_ = ros::WallTime::now();
   }
   subscribed_ = true;
   ROS_DEBUG("%s: subscribed to %s and %s", name_.c_str(), nh_.resolveName(left_topic).c_str(),
@@ -672,8 +743,72 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
 // Diagnostics
 // ------------------------------------------------------------------------------------------------
 
+std::string Reconstruction::explainSilence(double silent_s) const {
+  std::string left = nh_.resolveName(left_topic_), right = nh_.resolveName(right_topic_);
+  if (ros_params_.image_transport != "raw") {
+    left += " (transport " + ros_params_.image_transport + ")";
+    right += " (transport " + ros_params_.image_transport + ")";
+  }
+  std::ostringstream m;
+  m.precision(1);
+  m << std::fixed << "no image on " << left << " or " << right << " for " << silent_s
+    << " s although outputs have subscribers (rectify mode " << toString(mode_) << ")";
+  ros::master::V_TopicInfo topics;
+  if (!ros::master::getTopics(topics)) return m.str();
+  auto published = [&](const std::string& relative) {
+    const std::string name = nh_.resolveName(relative);
+    for (const auto& t : topics) {
+      if (t.name == name) return true;
+    }
+    return false;
+  };
+  const bool ours = published(left_topic_) || published(right_topic_);
+  if (mode_ != RectifyMode::kPassThrough &&
+      (published("left/image_rect") || published("left/image_rect_color"))) {
+    m << "; " << nh_.resolveName(published("left/image_rect") ? "left/image_rect"
+                                                              : "left/image_rect_color")
+      << " is published: for rectified input set rectify_mode:=pass_through (~rectify/mode "
+         "pass_through)";
+  } else if (mode_ == RectifyMode::kPassThrough && published("left/image_raw")) {
+    m << "; " << nh_.resolveName("left/image_raw")
+      << " is published: for raw input set rectify_mode:=calibrated (with camera_info) or "
+         "uncalibrated";
+  } else if (ours) {
+    m << "; the topics are advertised but send nothing: is the source paused (rosbag play "
+         "--pause, a stopped /clock) or on another image_transport (~image_transport "
+      << ros_params_.image_transport << ")?";
+  } else {
+    m << "; nothing publishes them: remap " << left_topic_ << " and " << right_topic_
+      << " to the camera's topics (endo_stereo.launch: left_image:=..., right_image:=...)";
+  }
+  return m.str();
+}
+
 void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat) {
   const ros::WallTime now = ros::WallTime::now();
+  // Silence: subscribed, and no image on either side for no_input_warn_s.
+  double silent_s = 0.0;
+  {
+    std::lock_guard<std::mutex> lock(info_mutex_);
+    const ros::WallTime last =
+        std::max(subscribed_since_, std::max(last_left_arrival_, last_right_arrival_));
+    if (subscribed_.load() && !last.isZero()) silent_s = (now - last).toSec();
+  }
+  const bool silent = silent_s > ros_params_.no_input_warn_s;
+  if (silent) {
+    // The explanation asks the master: at most every 5 s; the log repeats every 30 s.
+    if (silence_message_.empty() || (now - silence_explained_).toSec() > 5.0) {
+      silence_message_ = explainSilence(silent_s);
+      silence_explained_ = now;
+    }
+    if (silence_logged_.isZero() || (now - silence_logged_).toSec() > 30.0) {
+      ROS_WARN("%s: %s", name_.c_str(), silence_message_.c_str());
+      silence_logged_ = now;
+    }
+  } else {
+    silence_message_.clear();
+    silence_logged_ = ros::WallTime();
+  }
   size_t waiting = 0;
   {
     std::lock_guard<std::mutex> backlog_lock(backlog_mutex_);
@@ -694,6 +829,8 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "idle: no subscribers to the outputs");
   } else if (new_rejects > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "input rejected: " + last_error_);
+  } else if (silent) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no input: " + silence_message_);
   } else if (new_drops > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN,
                  "overloaded: " + std::to_string(new_drops) + " pairs dropped");
@@ -709,6 +846,7 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "ok");
   }
   stat.add("inputs subscribed", subscribed);
+  stat.add("seconds without input", silent_s);
   stat.add("input pair rate (Hz)", in_rate);
   stat.add("output rate (Hz)", out_rate);
   stat.add("left images", c.left_images);

@@ -9,6 +9,7 @@
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/ros/reconfigure.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
+#include "endo_stereo/ros/stereo_image_proc_params.hpp"
 
 namespace endo_stereo {
 
@@ -32,9 +33,15 @@ void ReconstructionNodelet::onInit() {
 
   RosParams ros_params;
   PipelineParams params;
+  StereoImageProcReport sip;
   std::string e = loadRosParams(pnh, ros_params);
   if (e.empty()) e = ros_params.validate();
   if (e.empty()) e = loadPipelineParamsFromRos(pnh, params);
+  // stereo_image_proc's names last: a user types them on purpose, over the preset's values.
+  if (e.empty()) e = applyStereoImageProcParams(pnh, params, &sip);
+  // Each once: onInit() runs once per load.
+  for (const std::string& line : sip.ignored) NODELET_WARN("%s", line.c_str());
+  for (const std::string& line : sip.mapped) NODELET_INFO("%s", line.c_str());
   if (e.empty()) e = params.validate();
   if (!e.empty()) {
     // Without valid parameters there is nothing sensible to run; say why once and stay idle
@@ -49,6 +56,7 @@ void ReconstructionNodelet::onInit() {
     return;
   }
   storePipelineParamsToRos(pnh, params);
+  storeStereoImageProcParams(pnh, params);
 
   reconfigure_server_ =
       std::make_unique<dynamic_reconfigure::Server<EndoStereoConfig>>(reconfigure_mutex_, pnh);
@@ -58,11 +66,15 @@ void ReconstructionNodelet::onInit() {
   reconfigure_server_->setCallback(
       boost::bind(&ReconstructionNodelet::reconfigureCb, this, boost::placeholders::_1,
                   boost::placeholders::_2));
-  NODELET_INFO("ready (%s input, %s sync, queue %d, backlog %d pairs up to %.2f s); waiting for "
-               "subscribers",
-               toString(params.rectify.mode).c_str(),
-               ros_params.approximate_sync ? "approximate" : "exact", ros_params.queue_size,
-               ros_params.backlog_pairs, ros_params.backlog_max_age_s);
+  std::string preset = ros_params.preset;
+  if (preset.empty()) {
+    std::string file;
+    pnh.getParam("config_file", file);
+    preset = file.empty() ? "none named (struct defaults and ~section/field parameters)" : file;
+  }
+  NODELET_INFO("ready: %s; preset %s; backlog %d pairs up to %.2f s; waiting for subscribers",
+               reconstruction_->describe().c_str(), preset.c_str(), ros_params.backlog_pairs,
+               ros_params.backlog_max_age_s);
 }
 
 void ReconstructionNodelet::reconfigureCb(EndoStereoConfig& config, uint32_t /*level*/) {
@@ -79,7 +91,11 @@ void ReconstructionNodelet::reconfigureCb(EndoStereoConfig& config, uint32_t /*l
   }
   // setCallback() calls back at once with the loaded parameters: nothing to say then.
   if (pipelineParamsToYaml(next) != pipelineParamsToYaml(current)) {
-    NODELET_INFO("reconfigured; the new parameters apply from the next frame");
+    // The parameter server shows the values in use (only those that changed are written).
+    storePipelineParamsToRos(getPrivateNodeHandle(), next, &current);
+    storeStereoImageProcParams(getPrivateNodeHandle(), next);
+    NODELET_INFO("reconfigured (disparity range %d..%d); the new parameters apply from the next "
+                 "frame", next.matcher.min_disparity, next.matcher.max_disparity);
   }
 }
 

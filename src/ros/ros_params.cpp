@@ -115,6 +115,8 @@ std::string RosParams::validate() const {
     m << "restart_jump_back_s: must be in [0, 3600] s, got " << restart_jump_back_s;
   } else if (!(subpixel_delta_d > 0.0 && subpixel_delta_d <= 1.0)) {
     m << "subpixel_delta_d: must be in (0, 1] px, got " << subpixel_delta_d;
+  } else if (!(no_input_warn_s > 0.0 && no_input_warn_s <= 3600.0)) {
+    m << "no_input_warn_s: must be in (0, 3600] s, got " << no_input_warn_s;
   }
   return m.str();
 }
@@ -165,13 +167,24 @@ std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params) {
   if (e.empty()) e = readBoth(pnh, "camera_info_wait_s", &p.camera_info_wait_s);
   if (e.empty()) e = readBoth(pnh, "restart_jump_back_s", &p.restart_jump_back_s);
   if (e.empty()) e = readBoth(pnh, "subpixel_delta_d", &p.subpixel_delta_d);
+  if (e.empty()) e = readBoth(pnh, "no_input_warn_s", &p.no_input_warn_s);
+  if (e.empty()) e = readBoth(pnh, "preset", &p.preset);
   if (!e.empty()) return e;
   params = p;
   return {};
 }
 
-void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params) {
-  for (const ParamInfo& info : listPipelineParams(params)) {
+void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params,
+                              const PipelineParams* previous) {
+  std::vector<ParamInfo> before;
+  if (previous) before = listPipelineParams(*previous);
+  const std::vector<ParamInfo> now = listPipelineParams(params);
+  for (size_t i = 0; i < now.size(); ++i) {
+    const ParamInfo& info = now[i];
+    // listPipelineParams() lists the keys in a fixed order, so the same index is the same key.
+    if (previous && i < before.size() && before[i].key == info.key && before[i].value == info.value) {
+      continue;
+    }
     const std::string name = info.section + "/" + info.field;
     switch (info.type) {
       case ParamType::kBool:

@@ -1,7 +1,8 @@
 /**
  * @file ros_test_utils.hpp
  * @brief Helpers of the rostest gtest nodes: collect messages and wait for one that matches with
- * a timeout (never a fixed sleep that can hang), read endo_stereo's diagnostics, build stereo
+ * a timeout (never a fixed sleep that can hang), read endo_stereo's diagnostics, ask the master
+ * what a node publishes and subscribes to, build stereo
  * input messages from a synthetic surgical frame, re-publish an input until its result arrives,
  * and the main() every rostest gtest node shares.
  *
@@ -13,6 +14,7 @@
 #include <functional>
 #include <map>
 #include <mutex>
+#include <set>
 #include <string>
 #include <vector>
 
@@ -151,6 +153,30 @@ inline double numberOr(const std::map<std::string, std::string>& kv, const std::
   } catch (...) {
     return fallback;
   }
+}
+
+/// Topics one node publishes and subscribes to, as registered with the master.
+struct NodeTopics {
+  std::set<std::string> published, subscribed;
+};
+
+/// What node @p node (a nodelet manager: all its nodelets together) publishes and subscribes
+/// to, from the master's getSystemState; empty when the master cannot be asked.
+inline NodeTopics topicsOf(const std::string& node) {
+  NodeTopics t;
+  XmlRpc::XmlRpcValue args, result, payload;
+  args[0] = ros::this_node::getName();
+  if (!ros::master::execute("getSystemState", args, result, payload, true)) return t;
+  for (int kind = 0; kind < 2; ++kind) {
+    for (int i = 0; i < payload[kind].size(); ++i) {
+      const std::string topic = static_cast<std::string>(payload[kind][i][0]);
+      for (int j = 0; j < payload[kind][i][1].size(); ++j) {
+        if (static_cast<std::string>(payload[kind][i][1][j]) != node) continue;
+        (kind == 0 ? t.published : t.subscribed).insert(topic);
+      }
+    }
+  }
+  return t;
 }
 
 inline sensor_msgs::ImagePtr imageMsg(const cv::Mat& m, const std::string& encoding,

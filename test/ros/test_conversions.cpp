@@ -279,7 +279,7 @@ TEST(Reconfigure, EveryNameIsAPipelineKeyAndDefaultsMatchTheStructs) {
 }
 
 TEST(Reconfigure, CoversEveryMatcherFilterTemporalAndOutputKey) {
-  // Issue 5: matcher thresholds, search range, priors and outputs are reconfigurable. A field
+  // Requirement: matcher thresholds, search range, priors and outputs are reconfigurable. A field
   // added to one of these structs without a .cfg entry fails here. num_threads is left out on
   // purpose: it does not change results and is set per machine.
   dynamic_reconfigure::Config msg;

@@ -229,7 +229,7 @@ TEST(CalibratedPair, DisparityAndCloudMatchGroundTruth) {
   const double bad2_rate = double(bad2) / valid;
   std::printf("[ INFO     ] density %.3f, bad2 among valid %.4f (%ld of %ld)\n", density,
               bad2_rate, static_cast<long>(bad2), static_cast<long>(valid));
-  EXPECT_LT(bad2_rate, 0.02) << "issue 5: bad2 among valid pixels under 2%";
+  EXPECT_LT(bad2_rate, 0.02) << "target: bad2 among valid pixels under 2%";
   {
     double sq = 0.0;
     for (double e : abs_err) sq += e * e;
@@ -284,7 +284,7 @@ TEST(CalibratedPair, DisparityAndCloudMatchGroundTruth) {
   const double share_1pct = double(good_disp_within_1pct) / std::max<int64_t>(1, good_disp_points);
   std::printf("[ INFO     ] depth: relative error median %.5f, p90 %.5f; share within 1%% "
               "(non-bad2) %.4f\n", median_rel, p90_rel, share_1pct);
-  EXPECT_LT(median_rel, 0.01) << "issue 5: cloud depths within 1%";
+  EXPECT_LT(median_rel, 0.01) << "target: cloud depths within 1%";
   EXPECT_GT(share_1pct, 0.95);
 }
 
@@ -313,6 +313,10 @@ TEST(Reconfigure, ChangeTakesEffectOnTheNextFrame) {
   int echoed = -1;
   ASSERT_TRUE(reconfigure("matcher_max_disparity", 95, &echoed));
   EXPECT_EQ(echoed, 95);
+  // The parameter server shows the value in use.
+  int on_server = -1;
+  EXPECT_TRUE(nh.getParam("/stereo/reconstruction/matcher/max_disparity", on_server));
+  EXPECT_EQ(on_server, 95);
   // The call has returned: the very next pair published must be processed with the new range.
   disparities.clear();
   ros::Time t = nextStamp();
@@ -326,6 +330,8 @@ TEST(Reconfigure, ChangeTakesEffectOnTheNextFrame) {
   // the next frame still runs with them.
   ASSERT_TRUE(reconfigure("matcher_window_min_px", 8, &echoed));
   EXPECT_NE(echoed, 8);
+  EXPECT_TRUE(nh.getParam("/stereo/reconstruction/matcher/window_min_px", on_server));
+  EXPECT_NE(on_server, 8) << "a refused value reached the parameter server";
   t = nextStamp();
   pub.publishPair(t);
   next = disparities.waitFor(

@@ -1,6 +1,6 @@
 // rostest (test/ros/registration.test): the nodelet's points2 of a synthetic calibrated pair go to
 // endo_stereo_registration_client, which registers them by ICP to the scene's exact surface moved
-// by a known offset. Issue 5: the registration converges with an RMS under 1 mm at endoscope
+// by a known offset. Requirement: the registration converges with an RMS under 1 mm at endoscope
 // scale (the scene is a 320x240 window at the 960x540 endoscope's focal length, 685.5 px, with
 // the tissue about 80 mm away).
 #include <cmath>

@@ -6,6 +6,7 @@
 
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
+#include "endo_stereo/ros/stereo_image_proc_params.hpp"
 
 namespace endo_stereo {
 namespace {
@@ -138,6 +139,93 @@ TEST(RosParamsFromRos, WrongTypeAndRangeAreReported) {
   r = RosParams();
   r.backlog_max_age_s = 0.0;
   EXPECT_NE(r.validate().find("backlog_max_age_s"), std::string::npos);
+}
+
+TEST(RosParamsFromRos, NoInputWarningDelayIsValidated) {
+  ros::NodeHandle pnh("~silence");
+  pnh.setParam("no_input_warn_s", 2);
+  RosParams r;
+  ASSERT_EQ(loadRosParams(pnh, r), "");
+  EXPECT_DOUBLE_EQ(r.no_input_warn_s, 2.0);
+  r.no_input_warn_s = 0.0;
+  EXPECT_NE(r.validate().find("no_input_warn_s"), std::string::npos);
+}
+
+TEST(StereoImageProcNames, MinAndRangeGiveTheirSearchRange) {
+  ros::NodeHandle pnh("~sip_both");
+  pnh.setParam("min_disparity", 20);
+  pnh.setParam("disparity_range", 96);
+  PipelineParams p;  // 0..63, as a preset would have it
+  StereoImageProcReport report;
+  ASSERT_EQ(applyStereoImageProcParams(pnh, p, &report), "");
+  EXPECT_EQ(p.matcher.min_disparity, 20);
+  EXPECT_EQ(p.matcher.max_disparity, 115);  // stereo_image_proc searches min .. min + range - 1
+  ASSERT_EQ(report.mapped.size(), 1u);
+  EXPECT_NE(report.mapped[0].find("20..115"), std::string::npos) << report.mapped[0];
+  EXPECT_TRUE(report.ignored.empty());
+}
+
+TEST(StereoImageProcNames, MinAloneKeepsTheWidthAndRangeAloneKeepsTheMin) {
+  ros::NodeHandle a("~sip_min");
+  a.setParam("min_disparity", 16);
+  PipelineParams p;
+  p.matcher.min_disparity = 0;
+  p.matcher.max_disparity = 63;
+  ASSERT_EQ(applyStereoImageProcParams(a, p, nullptr), "");
+  EXPECT_EQ(p.matcher.min_disparity, 16);
+  EXPECT_EQ(p.matcher.max_disparity, 79);
+  ros::NodeHandle b("~sip_range");
+  b.setParam("disparity_range", 32);
+  ASSERT_EQ(applyStereoImageProcParams(b, p, nullptr), "");
+  EXPECT_EQ(p.matcher.min_disparity, 16);
+  EXPECT_EQ(p.matcher.max_disparity, 47);
+}
+
+TEST(StereoImageProcNames, UnmappedNamesAreListedOnceWithWhatWeDoInstead) {
+  ros::NodeHandle pnh("~sip_ignored");
+  pnh.setParam("correlation_window_size", 15);
+  pnh.setParam("speckle_range", 4);
+  pnh.setParam("P1", 200.0);
+  pnh.setParam("queue_size", 10);  // ours too: not listed
+  PipelineParams p;
+  const std::string before = yaml(p);
+  StereoImageProcReport report;
+  ASSERT_EQ(applyStereoImageProcParams(pnh, p, &report), "");
+  EXPECT_EQ(yaml(p), before);
+  ASSERT_EQ(report.ignored.size(), 3u);
+  std::string all;
+  for (const auto& l : report.ignored) all += l + "\n";
+  EXPECT_NE(all.find("~correlation_window_size has no equivalent"), std::string::npos) << all;
+  EXPECT_NE(all.find("window_min_px"), std::string::npos) << all;
+  EXPECT_NE(all.find("~speckle_range"), std::string::npos) << all;
+  EXPECT_NE(all.find("~P1"), std::string::npos) << all;
+}
+
+TEST(StereoImageProcNames, WrongTypeOrEmptyRangeIsAnErrorNamingIt) {
+  ros::NodeHandle a("~sip_type");
+  a.setParam("min_disparity", 2.5);
+  PipelineParams p;
+  EXPECT_NE(applyStereoImageProcParams(a, p, nullptr).find("min_disparity"), std::string::npos);
+  ros::NodeHandle b("~sip_zero");
+  b.setParam("disparity_range", 0);
+  EXPECT_NE(applyStereoImageProcParams(b, p, nullptr).find("disparity_range"), std::string::npos);
+  EXPECT_EQ(yaml(p), yaml(PipelineParams()));
+}
+
+TEST(PipelineParamsFromRos, StoringAfterAChangeWritesTheChangedValues) {
+  ros::NodeHandle pnh("~store_changed");
+  PipelineParams p;
+  storePipelineParamsToRos(pnh, p);
+  PipelineParams q = p;
+  q.matcher.max_disparity = 99;
+  pnh.setParam("matcher/delta_min", 0.77);  // not changed in q: left as it is on the server
+  storePipelineParamsToRos(pnh, q, &p);
+  int max_d = 0;
+  double delta = 0.0;
+  ASSERT_TRUE(pnh.getParam("matcher/max_disparity", max_d));
+  ASSERT_TRUE(pnh.getParam("matcher/delta_min", delta));
+  EXPECT_EQ(max_d, 99);
+  EXPECT_DOUBLE_EQ(delta, 0.77);
 }
 
 }  // namespace

@@ -14,12 +14,20 @@
  *   silently stalling a four-way synchroniser.
  * - Out: `disparity` (stereo_msgs/DisparityImage), `points2` (sensor_msgs/PointCloud2,
  *   organized), `disparity_color` (bgr8 picture of the disparity for rviz and people, colour
- *   scale = the search range, invalid black), `confidence` (32FC1, [0, 1]), `disparity_fused` (DisparityImage), `coverage`
- *   (16UC1, longest run of frames without an update), `left/image_rect_color` (bgr8),
- *   `right/image_rect` (mono8), and /diagnostics.
+ *   scale = the search range, invalid black), `confidence` (32FC1, [0, 1]), `disparity_fused`
+ *   (DisparityImage), `coverage` (16UC1, longest run of frames without an update), and, where the
+ *   node rectifies (calibrated and uncalibrated modes), `left/image_rect_color` (bgr8) and
+ *   `right/image_rect` (mono8); and /diagnostics.
+ * - No topic is both an input and an output: pass_through mode, whose inputs are the rectified
+ *   images, publishes no rectified images (they would be its own input), and an output whose
+ *   resolved name equals an input's (after remapping) is not advertised, with a warning.
  *
  * Behaviour:
  * - Lazy: the inputs are subscribed only while some output has a subscriber.
+ * - Silence is reported: while an output has subscribers and no image has arrived on either
+ *   input for `~no_input_warn_s`, a warning (log, throttled, and diagnostics WARN) names the
+ *   topics listened to and the likely fix (e.g. `rectify_mode:=pass_through` when `image_rect`
+ *   topics are published in the namespace).
  * - Bounded: one processing thread takes the pairs from a backlog of at most `~backlog_pairs`.
  *   While it keeps up with the input (median processing time of the last 8 pairs below the
  *   median interval between pairs; always for the first 10 pairs) it takes them in order, so a
@@ -46,6 +54,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <image_transport/image_transport.h>
@@ -100,6 +109,9 @@ class Reconstruction {
   ReconstructionCounters counters() const;
   /// Whether the inputs are currently subscribed (lazy subscription).
   bool inputsSubscribed() const;
+  /// One line for the start-up log: input topics, rectify mode, synchronisation, disparity range
+  /// and the outputs advertised.
+  std::string describe() const;
 
  private:
   struct Pair {
@@ -125,6 +137,11 @@ class Reconstruction {
   /// Fills a pair's missing camera_info with the latest one, waiting up to camera_info_wait_s.
   void awaitCameraInfo(Pair& pair);
   bool usesCameraInfo() const;
+  /// Advertises the outputs, leaving out those that would be an input (see the file comment).
+  void advertiseOutputs();
+  /// Why nothing arrives (diagnose(), no image for no_input_warn_s): the topics listened to and
+  /// a likely fix from the topics published in the namespace (asks the master).
+  std::string explainSilence(double silent_s) const;
 
   ros::NodeHandle nh_, pnh_;
   std::string name_;
@@ -145,9 +162,11 @@ class Reconstruction {
   mutable std::mutex connect_mutex_;
   std::atomic<bool> subscribed_{false};  // written under connect_mutex_, read by diagnostics
 
-  // --- Outputs.
+  // --- Outputs (a publisher left unadvertised publishes nothing and has no subscribers).
   ros::Publisher pub_disparity_, pub_points_, pub_fused_;
   image_transport::Publisher pub_disparity_color_, pub_confidence_, pub_coverage_, pub_left_rect_, pub_right_rect_;
+  std::vector<std::string> outputs_;  // the outputs advertised (relative names), for describe()
+  std::string outputs_note_;          // why some were not advertised ("" when all were)
 
   // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
   mutable std::mutex info_mutex_;
@@ -156,6 +175,7 @@ class Reconstruction {
   sensor_msgs::CameraInfoConstPtr left_info_, right_info_;
   ros::WallTime last_left_arrival_, last_right_arrival_;
   ros::WallTime left_unpaired_since_, right_unpaired_since_;  // first image since the last pair
+  ros::WallTime subscribed_since_;  // when the inputs were last subscribed
   ros::Time last_left_stamp_, last_right_stamp_;
 
   // --- The bounded backlog between the callbacks and the processing thread (oldest first).
@@ -197,6 +217,9 @@ class Reconstruction {
   ros::WallTime last_error_time_;
   ReconstructionCounters diag_prev_;
   ros::WallTime diag_prev_time_;
+  // Silence (diagnostics thread only): the last explanation and when it was made and logged.
+  std::string silence_message_;
+  ros::WallTime silence_explained_, silence_logged_;
 
   // --- tf2 (only with a target_frame).
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;

@@ -4,13 +4,19 @@
  * parameters, builds a Reconstruction (reconstruction.hpp: topics, behaviour) and serves
  * dynamic_reconfigure (config/EndoStereo.cfg).
  *
- * Parameters (private): the pipeline keys `~section/field` and `~config_file`, and the nodelet's
+ * Parameters (private): the pipeline keys `~section/field` and `~config_file`, the nodelet's
  * own settings (ros_params.hpp: `~queue_size`, `~approximate_sync`, `~sync_tolerance_s`,
- * `~image_transport`, `~target_frame`, `~tf_timeout_s`, ...).
+ * `~image_transport`, `~target_frame`, `~tf_timeout_s`, `~no_input_warn_s`, `~preset`, ...), and
+ * stereo_image_proc's names (stereo_image_proc_params.hpp: `~min_disparity` and
+ * `~disparity_range` mapped, the others named in a warning, once). Once started it logs one line
+ * with the input topics, rectify mode, synchronisation, disparity range, preset and outputs.
  *
  * A reconfigure request builds a whole new PipelineParams from the parameters in use, validates
  * it and hands it to Reconstruction, which swaps it in between two frames; an invalid request is
- * refused with a message naming the field and the values in use are reported back.
+ * refused with a message naming the field and the values in use are reported back. An accepted
+ * request is written back to the parameter server (the changed `~section/field` values, and
+ * `~min_disparity` / `~disparity_range` where they are set), so `rosparam get` shows the values
+ * in use.
  *
  * Thread safety: onInit() runs once; the reconfigure callback is serialised by the server.
  */

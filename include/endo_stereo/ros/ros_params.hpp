@@ -73,6 +73,12 @@ struct RosParams {
   /// median 0.05-0.06 px, RMS 0.09-0.16 px across matcher versions; 0.1 px is that precision,
   /// not a quantisation step (SGBM's 1/16 px is one). The test fails if the RMS exceeds 2 x this.
   double subpixel_delta_d = 0.1;
+  /// While an output has subscribers and no image has arrived on either input for this long, a
+  /// warning (log and diagnostics) names the topics listened to and the likely fix, s, in (0, 3600].
+  double no_input_warn_s = 5.0;
+  /// Name of the preset the parameters came from, for the start-up line only (the launch files
+  /// set it to the YAML file they load; "" = none named).
+  std::string preset;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
   std::string validate() const;
@@ -91,7 +97,9 @@ std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams
 std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params);
 
 /// Write @p params into the private namespace as `~section/field` (so `rosparam get` shows the
-/// parameters in use).
-void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params);
+/// parameters in use): every one, or with @p previous only those that differ from it (after a
+/// reconfigure).
+void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params,
+                              const PipelineParams* previous = nullptr);
 
 }  // namespace endo_stereo
