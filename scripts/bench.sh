@@ -44,10 +44,14 @@ status=0
 # record ID CMD...: runs CMD from the repository root, its stdout to out/bench/ID.md, its stderr
 # to out/bench/ID.log, and records the command line for the report.
 record() {
-  local id=$1
+  local id=$1 line="" arg
   shift
-  printf '%s\t%s\n' "$id" "$*" >> "$COMMANDS"
-  echo "bench.sh: [$id] $*"
+  for arg in "$@"; do  # quoted as a shell would need it (single quotes around spaces and such)
+    if [[ "$arg" =~ ^[A-Za-z0-9_./%:=,+-]+$ ]]; then line+="$arg "; else line+="'$arg' "; fi
+  done
+  line="${line% }"
+  printf '%s\t%s\n' "$id" "$line" >> "$COMMANDS"
+  echo "bench.sh: [$id] $line"
   if ! "$@" > "$OUT/$id.md" 2> "$OUT/$id.log"; then
     echo "bench.sh: [$id] failed, see $OUT/$id.log" >&2
     status=1
