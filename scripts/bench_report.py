@@ -80,8 +80,9 @@ class Page:
 
 
 def evaluation_table(page, ev):
-    page.add("| method | density median % | density mean % | jumps > %g px %% | central covered every %d frames %% | central never %% | ms/frame median | time / SGBM | CPU ms median |"
-             % (ev["jump_px"], ev["window_frames"]),
+    page.add("| method | density median %% | density mean %% | jumps > %g px %% | central covered"
+             " every %d frames %% | central never %% | ms/frame median | time / SGBM | CPU ms"
+             " median |" % (ev["jump_px"], ev["window_frames"]),
              "|---|---:|---:|---:|---:|---:|---:|---:|---:|")
     for m in ev["methods"]:
         timed = "ms_median" in m
