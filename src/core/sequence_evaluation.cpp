@@ -17,7 +17,8 @@ SequenceMetrics::SequenceMetrics(const SequenceMetricsParams& params) : params_(
   if (params.window_frames < 1) {
     throw std::invalid_argument("SequenceMetrics: window_frames must be >= 1");
   }
-  if (!(params.jump_px >= 0.0)) throw std::invalid_argument("SequenceMetrics: jump_px must be >= 0");
+  if (!(params.jump_px >= 0.0))
+    throw std::invalid_argument("SequenceMetrics: jump_px must be >= 0");
 }
 
 void SequenceMetrics::reset() {

@@ -6,10 +6,6 @@
 //
 // Exit status: 0 success; 1 an input could not be read or processed, or an output not written;
 // 2 bad usage.
-#include <rosbag/bag.h>
-#include <rosbag/view.h>
-#include <sensor_msgs/CameraInfo.h>
-#include <sensor_msgs/Image.h>
 #include <sys/stat.h>
 #include <unistd.h>
 
@@ -22,7 +18,6 @@
 #include <fstream>
 #include <functional>
 #include <iostream>
-#include <map>
 #include <memory>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
@@ -36,12 +31,16 @@
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/core/sequence_evaluation.hpp"
-#include "endo_stereo/ros/conversions.hpp"
+#include "frame_sources.hpp"
 #include "json_writer.hpp"
 
 namespace {
 
+using endo_stereo::tools::Frame;
+using endo_stereo::tools::FrameSource;
+using endo_stereo::tools::isPattern;
 using endo_stereo::tools::JsonWriter;
+using endo_stereo::tools::validPattern;
 using Clock = std::chrono::steady_clock;
 
 constexpr int kExitOk = 0;
@@ -49,7 +48,7 @@ constexpr int kExitInput = 1;
 constexpr int kExitUsage = 2;
 
 const char* kUsage =
-    R"(endo_stereo_evaluate - our matcher beside OpenCV BM and SGBM on a recording without ground truth
+    R"(endo_stereo_evaluate - ours beside OpenCV BM and SGBM on a recording without ground truth
 
 Usage:
   endo_stereo_evaluate --left L --right R --min-disparity N --max-disparity N [options]
@@ -140,7 +139,8 @@ std::vector<std::string> split(const std::string& s, char sep) {
   size_t start = 0;
   while (start <= s.size()) {
     const size_t e = s.find(sep, start);
-    const std::string item = s.substr(start, e == std::string::npos ? std::string::npos : e - start);
+    const std::string item =
+        s.substr(start, e == std::string::npos ? std::string::npos : e - start);
     if (!item.empty()) out.push_back(item);
     if (e == std::string::npos) break;
     start = e + 1;
@@ -231,7 +231,8 @@ Options parseArgs(int argc, char** argv) {
       o.methods = split(need(i), ',');
       for (const std::string& m : o.methods) {
         if (m != "ours" && m != "ours-no-priors" && m != "bm" && m != "sgbm") {
-          throw UsageError{"--methods: unknown method '" + m + "' (ours, ours-no-priors, bm, sgbm)"};
+          throw UsageError{"--methods: unknown method '" + m +
+                           "' (ours, ours-no-priors, bm, sgbm)"};
         }
       }
       if (o.methods.empty()) throw UsageError{"--methods: empty list"};
@@ -260,7 +261,8 @@ Options parseArgs(int argc, char** argv) {
   if (files && (o.left.empty() || o.right.empty())) {
     throw UsageError{"--left and --right go together"};
   }
-  if (!o.has_min || !o.has_max) throw UsageError{"--min-disparity and --max-disparity are required"};
+  if (!o.has_min || !o.has_max)
+    throw UsageError{"--min-disparity and --max-disparity are required"};
   if (o.min_disparity < 0 || o.min_disparity > o.max_disparity) {
     throw UsageError{"bad disparity range " + std::to_string(o.min_disparity) + ".." +
                      std::to_string(o.max_disparity)};
@@ -275,261 +277,6 @@ Options parseArgs(int argc, char** argv) {
   }
   return o;
 }
-
-// --- frames ----------------------------------------------------------------------------------
-
-bool fileExists(const std::string& path) {
-  struct stat st;
-  return ::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode);
-}
-
-bool isPattern(const std::string& s) { return s.find('%') != std::string::npos; }
-
-std::string formatPattern(const std::string& pattern, int index) {
-  std::vector<char> buf(pattern.size() + 32);
-  std::snprintf(buf.data(), buf.size(), pattern.c_str(), index);
-  return std::string(buf.data());
-}
-
-/// A pattern with exactly one integer conversion (%d, %04d, %i) and no other '%' but '%%'.
-bool validPattern(const std::string& s) {
-  int conversions = 0;
-  for (size_t i = 0; i < s.size(); ++i) {
-    if (s[i] != '%') continue;
-    if (i + 1 < s.size() && s[i + 1] == '%') {
-      ++i;
-      continue;
-    }
-    size_t j = i + 1;
-    while (j < s.size() && std::isdigit(static_cast<unsigned char>(s[j]))) ++j;
-    if (j >= s.size() || (s[j] != 'd' && s[j] != 'i')) return false;
-    ++conversions;
-    i = j;
-  }
-  return conversions == 1;
-}
-
-// Reads an image as stored and names its ROS encoding (16-bit colour scaled to 8 bit).
-bool readImage(const std::string& path, cv::Mat& image, std::string& encoding, std::string* error) {
-  image = fileExists(path) ? cv::imread(path, cv::IMREAD_UNCHANGED) : cv::Mat();
-  if (image.empty()) {
-    *error = "cannot read image '" + path + "'";
-    return false;
-  }
-  if (image.depth() == CV_16U && image.channels() > 1) image.convertTo(image, CV_8U, 1.0 / 257.0);
-  switch (image.type()) {
-    case CV_8UC1:
-      encoding = "mono8";
-      return true;
-    case CV_16UC1:
-      encoding = "mono16";
-      return true;
-    case CV_8UC3:
-      encoding = "bgr8";
-      return true;
-    case CV_8UC4:
-      encoding = "bgra8";
-      return true;
-    default:
-      *error = "image '" + path + "': unsupported pixel type (8/16-bit, 1, 3 or 4 channels)";
-      return false;
-  }
-}
-
-/// One pair to evaluate.
-struct Frame {
-  endo_stereo::StereoInput input;
-  std::string name;  // file or stamp, for messages
-};
-
-/// Where the frames come from. next() returns false at the end (or on an error, with @p error).
-class FrameSource {
- public:
-  virtual ~FrameSource() = default;
-  virtual bool next(Frame& f, std::string* error) = 0;
-  /// Frames this source will give (-1 when unknown before reading).
-  virtual int size() const = 0;
-  virtual std::string describe() const = 0;
-  /// A calibration the pipeline must rectify with (bags with camera_info); empty otherwise.
-  virtual bool calibration(endo_stereo::StereoCalibration*) const { return false; }
-};
-
-class FileSource : public FrameSource {
- public:
-  explicit FileSource(const Options& o) : o_(o) {
-    sequence_ = isPattern(o.left);
-    first_ = o.first;
-    if (sequence_ && !o.has_first && !fileExists(formatPattern(o.left, 0)) &&
-        fileExists(formatPattern(o.left, 1))) {
-      first_ = 1;
-    }
-    if (sequence_) {
-      count_ = o.count;
-      if (count_ < 0) {
-        count_ = 0;
-        while (fileExists(formatPattern(o.left, first_ + count_))) ++count_;
-      }
-    } else {
-      count_ = o.repeat > 0 ? o.repeat : o.pan > 0 ? o.pan : 1;
-    }
-  }
-  int size() const override { return count_; }
-  std::string describe() const override {
-    std::string d = sequence_ ? o_.left + " and " + o_.right + ", frames " +
-                                    std::to_string(first_) + ".." +
-                                    std::to_string(first_ + count_ - 1)
-                              : o_.left + " and " + o_.right;
-    if (o_.repeat > 0) d += ", the same pair " + std::to_string(o_.repeat) + " times";
-    if (o_.pan > 0) {
-      d += ", " + std::to_string(o_.pan) + " frames of a " + std::to_string(o_.crop.width) + "x" +
-           std::to_string(o_.crop.height) + " crop window moving on a circle of radius " +
-           std::to_string(o_.pan_radius) + " px, one turn every " + std::to_string(o_.pan_period) +
-           " frames";
-    } else if (o_.crop.area() > 0) {
-      d += ", centre " + std::to_string(o_.crop.width) + "x" + std::to_string(o_.crop.height) +
-           " crop";
-    }
-    return d;
-  }
-  bool next(Frame& f, std::string* error) override {
-    if (n_ >= count_) return false;
-    const int index = first_ + (sequence_ ? n_ : 0);
-    const std::string lp = sequence_ ? formatPattern(o_.left, index) : o_.left;
-    const std::string rp = sequence_ ? formatPattern(o_.right, index) : o_.right;
-    if (sequence_ || left_.empty()) {
-      if (!readImage(lp, left_, left_enc_, error) || !readImage(rp, right_, right_enc_, error)) {
-        return false;
-      }
-      if (left_.size() != right_.size()) {
-        *error = "size mismatch between '" + lp + "' and '" + rp + "'";
-        return false;
-      }
-    }
-    cv::Point offset(0, 0);
-    if (o_.pan > 0) {
-      const double t = 2.0 * CV_PI * n_ / o_.pan_period;
-      offset = cv::Point(static_cast<int>(std::lround(o_.pan_radius * std::cos(t))),
-                         static_cast<int>(std::lround(o_.pan_radius * std::sin(t))));
-    }
-    if (o_.crop.area() > 0) {
-      const cv::Rect roi((left_.cols - o_.crop.width) / 2 + offset.x,
-                         (left_.rows - o_.crop.height) / 2 + offset.y, o_.crop.width,
-                         o_.crop.height);
-      if ((roi & cv::Rect(0, 0, left_.cols, left_.rows)) != roi) {
-        *error = "--crop " + std::to_string(o_.crop.width) + "x" + std::to_string(o_.crop.height) +
-                 (o_.pan > 0 ? " moved by the pan" : "") + " does not fit the " +
-                 std::to_string(left_.cols) + "x" + std::to_string(left_.rows) + " image";
-        return false;
-      }
-      f.input.left = left_(roi).clone();
-      f.input.right = right_(roi).clone();
-    } else {
-      f.input.left = left_.clone();
-      f.input.right = right_.clone();
-    }
-    f.input.left_encoding = left_enc_;
-    f.input.right_encoding = right_enc_;
-    f.input.stamp_s = (sequence_ ? index : n_) / o_.fps;
-    f.name = lp;
-    ++n_;
-    return true;
-  }
-
- private:
-  const Options& o_;
-  bool sequence_ = false;
-  int first_ = 0, count_ = 0, n_ = 0;
-  cv::Mat left_, right_;
-  std::string left_enc_, right_enc_;
-};
-
-class BagSource : public FrameSource {
- public:
-  BagSource(const Options& o) : o_(o) {
-    bag_.open(o.bag, rosbag::bagmode::Read);  // throws rosbag::BagException
-    left_topic_ = o.ns + "/left/image_raw";
-    right_topic_ = o.ns + "/right/image_raw";
-    // Count the pairs (left and right images with the same stamp) and read the camera_info.
-    std::map<double, int> sides;
-    rosbag::View all(bag_, rosbag::TopicQuery(std::vector<std::string>{
-                               left_topic_, right_topic_, o.ns + "/left/camera_info",
-                               o.ns + "/right/camera_info"}));
-    sensor_msgs::CameraInfo::ConstPtr li, ri;
-    for (const rosbag::MessageInstance& m : all) {
-      if (m.getTopic() == left_topic_ || m.getTopic() == right_topic_) {
-        auto img = m.instantiate<sensor_msgs::Image>();
-        if (img) sides[img->header.stamp.toSec()] |= m.getTopic() == left_topic_ ? 1 : 2;
-      } else if (m.getTopic() == o.ns + "/left/camera_info" && !li) {
-        li = m.instantiate<sensor_msgs::CameraInfo>();
-      } else if (m.getTopic() == o.ns + "/right/camera_info" && !ri) {
-        ri = m.instantiate<sensor_msgs::CameraInfo>();
-      }
-    }
-    for (const auto& kv : sides) pairs_ += kv.second == 3;
-    if (o.count > 0) pairs_ = std::min(pairs_, o.count);
-    if (li && ri && li->P[0] != 0.0 && ri->P[0] != 0.0) {
-      calibration_ = endo_stereo::ros_conv::stereoFromCameraInfo(*li, *ri);
-      has_calibration_ = true;
-    }
-    view_ = std::make_unique<rosbag::View>(
-        bag_, rosbag::TopicQuery(std::vector<std::string>{left_topic_, right_topic_}));
-    it_ = view_->begin();
-  }
-  int size() const override { return pairs_; }
-  std::string describe() const override {
-    return o_.bag + " (" + left_topic_ + ", " + right_topic_ + "; " +
-           (has_calibration_ ? "rectified with its camera_info" : "no camera_info: taken as rectified") +
-           ")";
-  }
-  bool calibration(endo_stereo::StereoCalibration* c) const override {
-    if (has_calibration_) *c = calibration_;
-    return has_calibration_;
-  }
-  bool next(Frame& f, std::string* error) override {
-    if (given_ >= pairs_) return false;
-    for (; it_ != view_->end(); ++it_) {
-      auto img = it_->instantiate<sensor_msgs::Image>();
-      if (!img) continue;
-      const bool is_left = it_->getTopic() == left_topic_;
-      const double stamp = img->header.stamp.toSec();
-      auto& mine = is_left ? pending_left_ : pending_right_;
-      auto& other = is_left ? pending_right_ : pending_left_;
-      mine[stamp] = img;
-      auto match = other.find(stamp);
-      if (match == other.end()) continue;
-      const sensor_msgs::Image::ConstPtr l = is_left ? img : match->second;
-      const sensor_msgs::Image::ConstPtr r = is_left ? match->second : img;
-      // Older unmatched images are dropped (their partner never came).
-      pending_left_.erase(pending_left_.begin(), pending_left_.upper_bound(stamp));
-      pending_right_.erase(pending_right_.begin(), pending_right_.upper_bound(stamp));
-      ++it_;
-      if (!endo_stereo::ros_conv::imageToMat(*l, f.input.left, error) ||
-          !endo_stereo::ros_conv::imageToMat(*r, f.input.right, error)) {
-        return false;
-      }
-      f.input.left_encoding = l->encoding;
-      f.input.right_encoding = r->encoding;
-      f.input.stamp_s = stamp;
-      char name[64];
-      std::snprintf(name, sizeof(name), "stamp %.6f", stamp);
-      f.name = name;
-      ++given_;
-      return true;
-    }
-    return false;
-  }
-
- private:
-  const Options& o_;
-  rosbag::Bag bag_;
-  std::string left_topic_, right_topic_;
-  int pairs_ = 0, given_ = 0;
-  endo_stereo::StereoCalibration calibration_;
-  bool has_calibration_ = false;
-  std::unique_ptr<rosbag::View> view_;
-  rosbag::View::iterator it_;
-  std::map<double, sensor_msgs::Image::ConstPtr> pending_left_, pending_right_;
-};
 
 // --- methods ---------------------------------------------------------------------------------
 
@@ -623,6 +370,167 @@ bool writeImage(const std::string& path, const cv::Mat& image, std::string* erro
   return ok;
 }
 
+/// What the JSON says about the run besides the streams.
+struct RunInfo {
+  std::string label, input, load_start;
+  int frames = 0, failed = 0, num_disp = 0, window = 0, picture = 0;
+  cv::Size size;
+  double sgbm_ms = 0.0;
+};
+
+/// Median of the times after the first @p skip frames (all of them when there are no more).
+double timingMedian(const std::vector<double>& v, int skip) {
+  const size_t k = v.size() > size_t(skip) ? size_t(skip) : 0;
+  return median(std::vector<double>(v.begin() + k, v.end()));
+}
+
+/// The evaluation's JSON (summary figures, per-frame series, machine, parameters).
+std::string evaluationJson(const Options& o, const RunInfo& r,
+                           const std::vector<std::unique_ptr<Stream>>& streams,
+                           const endo_stereo::PipelineParams* params) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("tool").value("endo_stereo_evaluate");
+  j.key("label").value(r.label);
+  j.key("input").value(r.input);
+  j.key("frames").value(r.frames);
+  j.key("frames_failed").value(r.failed);
+  j.key("width").value(r.size.width).key("height").value(r.size.height);
+  j.key("min_disparity").value(o.min_disparity).key("max_disparity").value(o.max_disparity);
+  j.key("opencv_num_disparities").value(r.num_disp);
+  j.key("jump_px").value(o.jump_px).key("window_frames").value(r.window);
+  j.key("skip_timing_frames").value(o.skip_timing);
+  j.key("picture_frame").value(r.picture);
+  j.key("machine").beginObject();
+  j.key("cpu").value(cpuModel());
+  j.key("logical_cpus").value(static_cast<int>(::sysconf(_SC_NPROCESSORS_ONLN)));
+  j.key("opencv").value(CV_VERSION).key("opencv_threads").value(cv::getNumThreads());
+  j.key("load_average_start").value(r.load_start).key("load_average_end").value(loadAverage());
+  j.endObject();
+  j.key("opencv_settings").beginObject();
+  j.key("bm").value("StereoBM blockSize 15, uniquenessRatio 15, other settings OpenCV defaults");
+  j.key("sgbm").value(
+      "StereoSGBM MODE_SGBM blockSize 5, P1 200, P2 800, uniquenessRatio 10, other settings "
+      "OpenCV defaults");
+  j.endObject();
+  j.key("methods").beginArray();
+  for (const auto& s : streams) {
+    const endo_stereo::SequenceSummary sum = s->metrics.summary();
+    j.beginObject();
+    j.key("key").value(s->key).key("name").value(s->name);
+    j.key("density_median").value(sum.density_median);
+    j.key("density_mean").value(sum.density_mean);
+    j.key("jump_share").value(sum.jump_share);
+    j.key("jump_pixels").value(sum.jump_pixels).key("compared_pixels").value(sum.compared_pixels);
+    j.key("coverage_every_window").value(sum.coverage_every_window);
+    j.key("coverage_never").value(sum.coverage_never);
+    if (s->timed) {
+      const double ms = timingMedian(s->ms, o.skip_timing);
+      j.key("ms_median").value(ms);
+      j.key("cpu_ms_median").value(timingMedian(s->cpu_ms, o.skip_timing));
+      if (std::isfinite(r.sgbm_ms)) j.key("time_over_sgbm").value(ms / r.sgbm_ms);
+      j.key("ms").beginArray();
+      for (double v : s->ms) j.value(v);
+      j.endArray();
+    }
+    j.key("density").beginArray();
+    for (double v : s->metrics.densities()) j.value(v);
+    j.endArray();
+    j.key("jumps").beginArray();
+    for (int64_t v : s->metrics.jumpCounts()) j.value(v);
+    j.endArray();
+    j.key("compared").beginArray();
+    for (int64_t v : s->metrics.comparedCounts()) j.value(v);
+    j.endArray();
+    j.endObject();
+  }
+  j.endArray();
+  if (params) {
+    j.key("params").beginObject();
+    for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(*params)) {
+      j.key(info.key).value(info.value);
+    }
+    j.endObject();
+  }
+  j.endObject();
+  return j.str();
+}
+
+/// Writes left.png, disparity_*.png, jumps_*.png, coverage_*.png and comparison.png to o.out_dir.
+bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>& streams,
+                   const cv::Mat& picture_left, int picture, int n, int window, cv::Size frame_size,
+                   std::string* error) {
+  const std::string d = o.out_dir + "/";
+  const double lo = o.min_disparity, hi = o.max_disparity;
+  if (!writeImage(d + "left.png", picture_left, error)) {
+    return false;
+  }
+  const int cw = std::min(frame_size.width, 480);
+  std::vector<cv::Mat> row_disp, row_jump, row_cov;
+  row_disp.push_back(cell(picture_left, cw, cv::format("left, frame %d of %d", picture + 1, n)));
+  cv::Mat gray_bg;
+  cv::cvtColor(picture_left, gray_bg, cv::COLOR_BGR2GRAY);
+  for (const auto& s : streams) {
+    if (s->picture_disparity.empty()) continue;
+    std::string file = s->key;
+    const cv::Mat disp = endo_stereo::colorizeDisparity(s->picture_disparity, lo, hi);
+    const cv::Mat jumps = endo_stereo::jumpMapImage(s->picture_jumps, gray_bg);
+    const endo_stereo::SequenceSummary sum = s->metrics.summary();
+    const cv::Mat cov =
+        endo_stereo::coverageMapImage(s->metrics.longestGap(), sum.frames, o.window);
+    if (!writeImage(d + "disparity_" + file + ".png", disp, error) ||
+        !writeImage(d + "jumps_" + file + ".png", jumps, error) ||
+        !writeImage(d + "coverage_" + file + ".png", cov, error)) {
+      return false;
+    }
+    const double dens = s->metrics.densities()[picture];
+    row_disp.push_back(cell(disp, cw, cv::format("%s: %.0f%% dense", s->name.c_str(), 100 * dens)));
+    row_jump.push_back(cell(jumps, cw, cv::format("jumps > %g px vs previous frame", o.jump_px)));
+    row_cov.push_back(
+        cell(cov, cw,
+             cv::format("coverage: %.0f%% every %d, %.0f%% never", 100 * sum.coverage_every_window,
+                        sum.window_frames, 100 * sum.coverage_never)));
+  }
+  // The first column's lower cells: the colour scale and the legends.
+  cv::Mat scale_cell = blankLike(row_disp[0]);
+  {
+    cv::Mat ramp(1, cw - 20, CV_32FC1);
+    for (int x = 0; x < ramp.cols; ++x) ramp.at<float>(0, x) = lo + (hi - lo) * x / (ramp.cols - 1);
+    cv::Mat bar = endo_stereo::colorizeDisparity(ramp, lo, hi);
+    cv::resize(bar, bar, cv::Size(ramp.cols, 20), 0, 0, cv::INTER_NEAREST);
+    bar.copyTo(scale_cell(cv::Rect(10, 30, bar.cols, bar.rows)));
+    putLines(scale_cell,
+             {cv::format("disparity %d px", o.min_disparity) +
+                  std::string(std::max(1, (cw - 20) / 8 - 16), ' ') +
+                  cv::format("%d px", o.max_disparity),
+              "black: no value", "jump maps: red = jumped, green = stable,",
+              "  dark = no value in this or the previous frame",
+              cv::format("coverage: green = a value in every %d frames,", window),
+              "  yellow..red = longer gaps, dark red = never;",
+              "  white box = central region (half each way)"},
+             70);
+  }
+  std::vector<cv::Mat> rows;
+  auto hrow = [&](std::vector<cv::Mat> cells) {
+    cv::Mat r;
+    cv::hconcat(cells, r);
+    rows.push_back(r);
+  };
+  hrow(row_disp);
+  if (!row_jump.empty()) {
+    row_jump.insert(row_jump.begin(), scale_cell);
+    hrow(row_jump);
+    row_cov.insert(row_cov.begin(), blankLike(row_disp[0]));
+    hrow(row_cov);
+  }
+  cv::Mat figure;
+  cv::vconcat(rows, figure);
+  if (!writeImage(d + "comparison.png", figure, error)) {
+    return false;
+  }
+  return true;
+}
+
 int run(int argc, char** argv) {
   Options o;
   try {
@@ -680,13 +588,23 @@ int run(int argc, char** argv) {
   }
   if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
 
+  endo_stereo::tools::FrameSourceSettings fs;
+  fs.left = o.left;
+  fs.right = o.right;
+  fs.has_first = o.has_first;
+  fs.first = o.first;
+  fs.count = o.count;
+  fs.fps = o.fps;
+  fs.crop = o.crop;
+  fs.repeat = o.repeat;
+  fs.pan = o.pan;
+  fs.pan_radius = o.pan_radius;
+  fs.pan_period = o.pan_period;
+  fs.bag_path = o.bag;
+  fs.ns = o.ns;
   std::unique_ptr<FrameSource> source;
   try {
-    if (o.bag.empty()) {
-      source = std::make_unique<FileSource>(o);
-    } else {
-      source = std::make_unique<BagSource>(o);
-    }
+    source = endo_stereo::tools::makeFrameSource(fs);
   } catch (const std::exception& ex) {
     std::cerr << "endo_stereo_evaluate: cannot read the bag: " << ex.what() << "\n";
     return kExitInput;
@@ -879,18 +797,15 @@ int run(int argc, char** argv) {
   }
 
   // --- summary ---------------------------------------------------------------------------------
-  auto timingMedian = [&](const std::vector<double>& v) {
-    const size_t skip = v.size() > size_t(o.skip_timing) ? size_t(o.skip_timing) : 0;
-    return median(std::vector<double>(v.begin() + skip, v.end()));
-  };
-  const double sgbm_ms = sgbm_stream ? timingMedian(sgbm_stream->ms) : std::nan("");
+  const double sgbm_ms = sgbm_stream ? timingMedian(sgbm_stream->ms, o.skip_timing) : std::nan("");
   const std::string label = o.label.empty() ? source->describe() : o.label;
   const int window = std::min(o.window, n);
   std::printf("%s: %d frames %dx%d, disparities %d..%d (OpenCV: %d..%d)\n\n", label.c_str(), n,
               frame_size.width, frame_size.height, o.min_disparity, o.max_disparity,
               o.min_disparity, o.min_disparity + num_disp - 1);
   std::printf(
-      "| method | density median %% | density mean %% | jumps > %g px %% | central covered every %d "
+      "| method | density median %% | density mean %% | jumps > %g px %% | central covered every "
+      "%d "
       "frames %% | central never %% | ms/frame median | time / SGBM | CPU ms median |\n"
       "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
       o.jump_px, window);
@@ -898,17 +813,18 @@ int run(int argc, char** argv) {
     const endo_stereo::SequenceSummary sum = s->metrics.summary();
     char timing[128] = "| - | - | - |";
     if (s->timed) {
-      const double ms = timingMedian(s->ms);
+      const double ms = timingMedian(s->ms, o.skip_timing);
       std::snprintf(timing, sizeof(timing), "| %.1f | %s | %.1f |", ms,
                     std::isfinite(sgbm_ms) ? cv::format("%.2f", ms / sgbm_ms).c_str() : "-",
-                    timingMedian(s->cpu_ms));
+                    timingMedian(s->cpu_ms, o.skip_timing));
     }
     std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.1f %s\n", s->name.c_str(),
                 100 * sum.density_median, 100 * sum.density_mean, 100 * sum.jump_share,
                 100 * sum.coverage_every_window, 100 * sum.coverage_never, timing);
   }
   std::printf(
-      "\nTimes: wall time per frame, median over frames %d..%d; ours is the whole Pipeline::process "
+      "\nTimes: wall time per frame, median over frames %d..%d; ours is the whole "
+      "Pipeline::process "
       "call (threads: %d), OpenCV's the compute() call on the same rectified gray pair.%s\n",
       std::min(o.skip_timing, n - 1) + 1, n, cv::getNumThreads(),
       failed ? cv::format(" %d frame(s) failed.", failed).c_str() : "");
@@ -919,153 +835,30 @@ int run(int argc, char** argv) {
   if (json_path.empty() && !o.out_dir.empty()) json_path = o.out_dir + "/evaluation.json";
   if (!o.out_dir.empty()) ::mkdir(o.out_dir.c_str(), 0755);
   if (!json_path.empty()) {
-    JsonWriter j;
-    j.beginObject();
-    j.key("tool").value("endo_stereo_evaluate");
-    j.key("label").value(label);
-    j.key("input").value(source->describe());
-    j.key("frames").value(n);
-    j.key("frames_failed").value(failed);
-    j.key("width").value(frame_size.width).key("height").value(frame_size.height);
-    j.key("min_disparity").value(o.min_disparity).key("max_disparity").value(o.max_disparity);
-    j.key("opencv_num_disparities").value(num_disp);
-    j.key("jump_px").value(o.jump_px).key("window_frames").value(window);
-    j.key("skip_timing_frames").value(o.skip_timing);
-    j.key("picture_frame").value(picture);
-    j.key("machine").beginObject();
-    j.key("cpu").value(cpuModel());
-    j.key("logical_cpus").value(static_cast<int>(::sysconf(_SC_NPROCESSORS_ONLN)));
-    j.key("opencv").value(CV_VERSION).key("opencv_threads").value(cv::getNumThreads());
-    j.key("load_average_start").value(load_start).key("load_average_end").value(loadAverage());
-    j.endObject();
-    j.key("opencv_settings").beginObject();
-    j.key("bm").value("StereoBM blockSize 15, uniquenessRatio 15, other settings OpenCV defaults");
-    j.key("sgbm").value(
-        "StereoSGBM MODE_SGBM blockSize 5, P1 200, P2 800, uniquenessRatio 10, other settings "
-        "OpenCV defaults");
-    j.endObject();
-    j.key("methods").beginArray();
-    for (const auto& s : streams) {
-      const endo_stereo::SequenceSummary sum = s->metrics.summary();
-      j.beginObject();
-      j.key("key").value(s->key).key("name").value(s->name);
-      j.key("density_median").value(sum.density_median);
-      j.key("density_mean").value(sum.density_mean);
-      j.key("jump_share").value(sum.jump_share);
-      j.key("jump_pixels").value(sum.jump_pixels).key("compared_pixels").value(sum.compared_pixels);
-      j.key("coverage_every_window").value(sum.coverage_every_window);
-      j.key("coverage_never").value(sum.coverage_never);
-      if (s->timed) {
-        const double ms = timingMedian(s->ms);
-        j.key("ms_median").value(ms);
-        j.key("cpu_ms_median").value(timingMedian(s->cpu_ms));
-        if (std::isfinite(sgbm_ms)) j.key("time_over_sgbm").value(ms / sgbm_ms);
-        j.key("ms").beginArray();
-        for (double v : s->ms) j.value(v);
-        j.endArray();
-      }
-      j.key("density").beginArray();
-      for (double v : s->metrics.densities()) j.value(v);
-      j.endArray();
-      j.key("jumps").beginArray();
-      for (int64_t v : s->metrics.jumpCounts()) j.value(v);
-      j.endArray();
-      j.key("compared").beginArray();
-      for (int64_t v : s->metrics.comparedCounts()) j.value(v);
-      j.endArray();
-      j.endObject();
-    }
-    j.endArray();
-    if (any_ours) {
-      j.key("params").beginObject();
-      for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(params)) {
-        j.key(info.key).value(info.value);
-      }
-      j.endObject();
-    }
-    j.endObject();
+    RunInfo info;
+    info.label = label;
+    info.input = source->describe();
+    info.frames = n;
+    info.failed = failed;
+    info.size = frame_size;
+    info.num_disp = num_disp;
+    info.window = window;
+    info.picture = picture;
+    info.load_start = load_start;
+    info.sgbm_ms = sgbm_ms;
+    const std::string text = evaluationJson(o, info, streams, any_ours ? &params : nullptr);
     std::ofstream f(json_path);
-    f << j.str();
+    f << text;
     if (!f) {
       std::cerr << "endo_stereo_evaluate: cannot write '" << json_path << "'\n";
       return kExitInput;
     }
   }
 
-  // --- pictures --------------------------------------------------------------------------------
-  if (!o.out_dir.empty() && !picture_left.empty()) {
-    const std::string d = o.out_dir + "/";
-    const double lo = o.min_disparity, hi = o.max_disparity;
-    if (!writeImage(d + "left.png", picture_left, &err)) {
-      std::cerr << "endo_stereo_evaluate: " << err << "\n";
-      return kExitInput;
-    }
-    const int cw = std::min(frame_size.width, 480);
-    std::vector<cv::Mat> row_disp, row_jump, row_cov;
-    row_disp.push_back(cell(picture_left, cw, cv::format("left, frame %d of %d", picture + 1, n)));
-    cv::Mat gray_bg;
-    cv::cvtColor(picture_left, gray_bg, cv::COLOR_BGR2GRAY);
-    for (const auto& s : streams) {
-      if (s->picture_disparity.empty()) continue;
-      std::string file = s->key;
-      const cv::Mat disp = endo_stereo::colorizeDisparity(s->picture_disparity, lo, hi);
-      const cv::Mat jumps = endo_stereo::jumpMapImage(s->picture_jumps, gray_bg);
-      const endo_stereo::SequenceSummary sum = s->metrics.summary();
-      const cv::Mat cov =
-          endo_stereo::coverageMapImage(s->metrics.longestGap(), sum.frames, o.window);
-      if (!writeImage(d + "disparity_" + file + ".png", disp, &err) ||
-          !writeImage(d + "jumps_" + file + ".png", jumps, &err) ||
-          !writeImage(d + "coverage_" + file + ".png", cov, &err)) {
-        std::cerr << "endo_stereo_evaluate: " << err << "\n";
-        return kExitInput;
-      }
-      const double dens = s->metrics.densities()[picture];
-      row_disp.push_back(cell(disp, cw, cv::format("%s: %.0f%% dense", s->name.c_str(), 100 * dens)));
-      row_jump.push_back(cell(jumps, cw, cv::format("jumps > %g px vs previous frame", o.jump_px)));
-      row_cov.push_back(cell(cov, cw,
-                             cv::format("coverage: %.0f%% every %d, %.0f%% never", 
-                                        100 * sum.coverage_every_window, sum.window_frames,
-                                        100 * sum.coverage_never)));
-    }
-    // The first column's lower cells: the colour scale and the legends.
-    cv::Mat scale_cell = blankLike(row_disp[0]);
-    {
-      cv::Mat ramp(1, cw - 20, CV_32FC1);
-      for (int x = 0; x < ramp.cols; ++x) ramp.at<float>(0, x) = lo + (hi - lo) * x / (ramp.cols - 1);
-      cv::Mat bar = endo_stereo::colorizeDisparity(ramp, lo, hi);
-      cv::resize(bar, bar, cv::Size(ramp.cols, 20), 0, 0, cv::INTER_NEAREST);
-      bar.copyTo(scale_cell(cv::Rect(10, 30, bar.cols, bar.rows)));
-      putLines(scale_cell,
-               {cv::format("disparity %d px", o.min_disparity) +
-                    std::string(std::max(1, (cw - 20) / 8 - 16), ' ') +
-                    cv::format("%d px", o.max_disparity),
-                "black: no value",
-                "jump maps: red = jumped, green = stable,",
-                "  dark = no value in this or the previous frame",
-                cv::format("coverage: green = a value in every %d frames,", window),
-                "  yellow..red = longer gaps, dark red = never;",
-                "  white box = central region (half each way)"},
-               70);
-    }
-    std::vector<cv::Mat> rows;
-    auto hrow = [&](std::vector<cv::Mat> cells) {
-      cv::Mat r;
-      cv::hconcat(cells, r);
-      rows.push_back(r);
-    };
-    hrow(row_disp);
-    if (!row_jump.empty()) {
-      row_jump.insert(row_jump.begin(), scale_cell);
-      hrow(row_jump);
-      row_cov.insert(row_cov.begin(), blankLike(row_disp[0]));
-      hrow(row_cov);
-    }
-    cv::Mat figure;
-    cv::vconcat(rows, figure);
-    if (!writeImage(d + "comparison.png", figure, &err)) {
-      std::cerr << "endo_stereo_evaluate: " << err << "\n";
-      return kExitInput;
-    }
+  if (!o.out_dir.empty() && !picture_left.empty() &&
+      !writePictures(o, streams, picture_left, picture, n, window, frame_size, &err)) {
+    std::cerr << "endo_stereo_evaluate: " << err << "\n";
+    return kExitInput;
   }
   return failed ? kExitInput : kExitOk;
 }

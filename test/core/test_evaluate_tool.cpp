@@ -190,9 +190,8 @@ TEST_F(EvaluateTool, OpenCvFiguresOnAGeneratedSequenceMatchAnIndependentComputat
 }
 
 TEST_F(EvaluateTool, ABagGivesTheSameFramesAsTheImageFiles) {
-  ASSERT_EQ(evaluate("--bag " + dir_ + "/seq.bag --methods ours,bm --out " + dir_ + "/bag" +
-                     range()),
-            0)
+  ASSERT_EQ(
+      evaluate("--bag " + dir_ + "/seq.bag --methods ours,bm --out " + dir_ + "/bag" + range()), 0)
       << dir_ << "/stderr.txt";
   const YAML::Node root = YAML::LoadFile(dir_ + "/bag/evaluation.json");
   EXPECT_EQ(root["frames"].as<int>(), 12);
@@ -222,9 +221,9 @@ TEST_F(EvaluateTool, AStaticPairHasNoJumpsForOpenCv) {
 
 TEST_F(EvaluateTool, BadUsageExitsWithTwo) {
   EXPECT_EQ(evaluate("--left " + lefts_[0] + " --right " + rights_[0]), 2);  // no range
-  EXPECT_EQ(evaluate("--left " + lefts_[0] + " --right " + rights_[0] + range() +
-                     " --methods ours,elas"),
-            2);
+  EXPECT_EQ(
+      evaluate("--left " + lefts_[0] + " --right " + rights_[0] + range() + " --methods ours,elas"),
+      2);
   EXPECT_EQ(evaluate("--left " + lefts_[0] + " --right " + rights_[0] + range() + " --pan 5"),
             2);  // --pan needs --crop
   EXPECT_EQ(evaluate("--left " + dir_ + "/missing.png --right " + rights_[0] + range()), 1);

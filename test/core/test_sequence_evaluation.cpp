@@ -148,8 +148,9 @@ struct Independent {
 };
 
 // Written without SequenceMetrics: OpenCV called with every setting spelled out, counts by loops.
-Independent independentFigures(const std::vector<cv::Mat>& lefts, const std::vector<cv::Mat>& rights,
-                               bool sgbm, int min_d, int num_d) {
+Independent independentFigures(const std::vector<cv::Mat>& lefts,
+                               const std::vector<cv::Mat>& rights, bool sgbm, int min_d,
+                               int num_d) {
   cv::Ptr<cv::StereoMatcher> matcher;
   if (sgbm) {
     matcher = cv::StereoSGBM::create(min_d, num_d, 5, 200, 800, 0, 0, 10, 0, 0,

@@ -93,7 +93,7 @@ class SequenceMetrics {
  private:
   SequenceMetricsParams params_;
   int frames_ = 0;
-  cv::Mat previous_;  // CV_32FC1, last frame
+  cv::Mat previous_;                   // CV_32FC1, last frame
   cv::Mat current_gap_, longest_gap_;  // CV_16UC1
   cv::Mat jump_map_;                   // CV_8UC1
   std::vector<double> densities_;
