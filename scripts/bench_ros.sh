@@ -1,29 +1,48 @@
 #!/usr/bin/env bash
-# Issue 5 benchmark: a 960x540 synthetic surgical bag played at 25 fps with `rosbag play` through
-# endo_stereo's node and, in the same run on the same bag, through Debian's stereo_image_proc
-# (SGBM). One after the other (not concurrently: on a small machine they would compete for the
-# same cores), each as a standalone node (endo_stereo_node, /usr/lib/stereo_image_proc/...).
+# The nodelet on a stream: bags played at 25 fps with `rosbag play` through endo_stereo's node and,
+# on the same bag, through Debian's stereo_image_proc (SGBM). One after the other (not
+# concurrently: on a small machine they would compete for the same cores), each as a standalone
+# node (endo_stereo_node, /usr/lib/stereo_image_proc/...).
+#
+# Cases (BENCH_CASES, default "invivo real960 synthetic"; the real ones only when
+# ../shared/data/real is present):
+#   invivo     all 150 frames of real/hamlyn_invivo1 (360x288, rectified), search 0..127
+#   real960    the SCARED ds1 pair rectified with its calibration (endo_stereo_cli --calib), a
+#              960x540 crop window moving on a circle of radius 24 px, one turn every 75 frames
+#              (as endo_stereo_evaluate --pan), BENCH_REAL_FRAMES frames (100), search 48..111
+#   synthetic  a generated surgical bag (endo_stereo_generate), BENCH_WIDTH x BENCH_HEIGHT
+#              (960 x 540), BENCH_FRAMES frames (100), its suggested range rounded to 16
+# Real frames become bags with scripts/frames_to_bag.py (rectified camera_info: no distortion,
+# R = I; f and the baseline only scale depth).
 #
 # Per node: pairs in, disparities out, output rate, drops (pairs in - outputs; endo_stereo also
 # reports its own count), median and p90 latency from the left image's arrival at a listener to
 # the disparity's arrival at the same listener (same stamp; transport included, both ways the
 # same), density (valid disparity pixels).
 #
-# Writes out/bench_ros/ (bag, logs, JSON) and the table to $BENCH_NOTES (default
-# out/bench_ros/ros_bench.md; BENCHMARKS.md section 6 records a run).
-# Environment: BENCH_FRAMES (100), BENCH_WIDTH x BENCH_HEIGHT (960 x 540), BENCH_RATE (1.0 = 25 fps),
-# BENCH_TARGETS ("endo_stereo stereo_image_proc"), BENCH_ES_PARAMS (endo_stereo's private
-# parameters on top of config/default.yaml, "name=value ...", e.g. "backlog_pairs=1").
+# Writes out/bench_ros/ (bags, logs, per-run JSON, ros_bench.json) and the table to $BENCH_NOTES
+# (default out/bench_ros/ros_bench.md); scripts/bench_report.py puts it in BENCHMARKS.md.
+# Environment: BENCH_CASES, BENCH_FRAMES, BENCH_REAL_FRAMES, BENCH_WIDTH, BENCH_HEIGHT,
+# BENCH_RATE (1.0 = 25 fps), BENCH_TARGETS ("endo_stereo stereo_image_proc"), BENCH_ES_PARAMS
+# (endo_stereo's private parameters on top of config/default.yaml, "name=value ...").
 set -uo pipefail
 source "$(dirname "$0")/env.sh"
 es_source_ws
 
 OUT="$ES_ROOT/out/bench_ros"
 FRAMES="${BENCH_FRAMES:-100}"
+REAL_FRAMES="${BENCH_REAL_FRAMES:-100}"
 WIDTH="${BENCH_WIDTH:-960}"
 HEIGHT="${BENCH_HEIGHT:-540}"
 RATE="${BENCH_RATE:-1.0}"
 TARGETS="${BENCH_TARGETS:-endo_stereo stereo_image_proc}"
+REAL="$(cd "$ES_ROOT/.." && pwd)/shared/data/real"
+if [ -d "$REAL" ]; then
+  CASES="${BENCH_CASES:-invivo real960 synthetic}"
+else
+  echo "[bench_ros] NOTE: $REAL is absent: the real-frame cases are skipped" >&2
+  CASES="${BENCH_CASES:-synthetic}"
+fi
 if [ -z "${BENCH_NOTES:-}" ]; then
   BENCH_NOTES="$OUT/ros_bench.md"
 fi
@@ -43,16 +62,22 @@ cleanup() {
 }
 trap cleanup EXIT
 
-BAG="$OUT/bench_${WIDTH}x${HEIGHT}_${FRAMES}.bag"
-if [ ! -s "$BAG" ]; then
-  echo "[bench_ros] generating $BAG"
-  "$WS/devel/lib/endo_stereo/endo_stereo_generate" --out "$OUT/sequence" --bag "$BAG" --no-images \
-    --no-gt --frames "$FRAMES" --width "$WIDTH" --height "$HEIGHT" --namespace "$NS" \
-    > "$OUT/log/generate.log" 2>&1 || { echo "[bench_ros] generation failed" >&2; exit 1; }
-  # stereo_image_proc (image_geometry) aborts when the two camera_info frame_ids differ
-  # (../shared/PLATFORM.md); the ROS stereo convention gives both the left optical frame. endo_stereo
-  # accepts either, so both nodes get this same bag.
-  /usr/bin/python3 - "$BAG" <<'PYEOF'
+# prepare_case CASE: builds the case's bag if missing; sets BAG, DMIN, DMAX, NFRAMES, DESC.
+prepare_case() {
+  case "$1" in
+  synthetic)
+    NFRAMES="$FRAMES"
+    BAG="$OUT/bench_${WIDTH}x${HEIGHT}_${FRAMES}.bag"
+    DESC="generated surgical scene (endo_stereo_generate), ${WIDTH}x${HEIGHT}"
+    if [ ! -s "$BAG" ]; then
+      echo "[bench_ros] generating $BAG"
+      "$WS/devel/lib/endo_stereo/endo_stereo_generate" --out "$OUT/sequence" --bag "$BAG" \
+        --no-images --no-gt --frames "$FRAMES" --width "$WIDTH" --height "$HEIGHT" \
+        --namespace "$NS" > "$OUT/log/generate.log" 2>&1 || return 1
+      # stereo_image_proc (image_geometry) aborts when the two camera_info frame_ids differ; the
+      # ROS stereo convention gives both the left optical frame. endo_stereo accepts either, so
+      # both nodes get this same bag.
+      /usr/bin/python3 - "$BAG" <<'PYEOF' || return 1
 import os, sys, rosbag
 src = sys.argv[1]
 tmp = src + ".tmp"
@@ -69,19 +94,58 @@ with rosbag.Bag(src) as bag, rosbag.Bag(tmp, "w") as out:
         out.write(topic, msg, t)
 os.replace(tmp, src)
 PYEOF
-fi
-read -r DMIN DMAX < <(/usr/bin/python3 -c "import yaml,sys; s=yaml.safe_load(open(sys.argv[1])); print(s['min_disparity'], s['max_disparity'])" "$OUT/sequence/sequence.yaml")
-# SGBM needs a range that is a multiple of 16; both search the same span.
-RANGE=$(( ( (DMAX - DMIN + 1 + 15) / 16 ) * 16 ))
-DMAX=$(( DMIN + RANGE - 1 ))
-echo "[bench_ros] disparity range $DMIN..$DMAX px ($RANGE values), $FRAMES frames ${WIDTH}x${HEIGHT} at $(/usr/bin/python3 -c "print(25*$RATE)") fps"
+    fi
+    read -r DMIN DMAX < <(/usr/bin/python3 -c "import yaml,sys; s=yaml.safe_load(open(sys.argv[1])); print(s['min_disparity'], s['max_disparity'])" "$OUT/sequence/sequence.yaml")
+    # SGBM needs a range that is a multiple of 16; both search the same span.
+    local range=$(( ( (DMAX - DMIN + 1 + 15) / 16 ) * 16 ))
+    DMAX=$(( DMIN + range - 1 ))
+    ;;
+  invivo)
+    NFRAMES=150
+    DMIN=0
+    DMAX=127
+    BAG="$OUT/invivo_hamlyn1_150.bag"
+    DESC="real in-vivo video (hamlyn_invivo1), 360x288"
+    if [ ! -s "$BAG" ]; then
+      /usr/bin/python3 "$ES_ROOT/scripts/frames_to_bag.py" \
+        --left "$REAL/hamlyn_invivo1/left/%04d.png" --right "$REAL/hamlyn_invivo1/right/%04d.png" \
+        --first 1 --count 150 --ns "$NS" --out "$BAG" > "$OUT/log/bag_invivo.log" 2>&1 || return 1
+    fi
+    ;;
+  real960)
+    NFRAMES="$REAL_FRAMES"
+    DMIN=48
+    DMAX=111
+    BAG="$OUT/real960_scared_pan_${REAL_FRAMES}.bag"
+    DESC="real 960x540 frame (SCARED ds1 rectified, moving crop)"
+    if [ ! -s "$BAG" ]; then
+      local rect="$OUT/scared_rect"
+      if [ ! -s "${rect}_left.png" ]; then
+        "$WS/devel/lib/endo_stereo/endo_stereo_cli" --left "$REAL/scared_ds1_pair/Left_Image.png" \
+          --right "$REAL/scared_ds1_pair/Right_Image.png" \
+          --calib "$REAL/scared_ds1_pair/calib_scared_official_ds1-3.yaml" \
+          --out-rectified "$rect" --min-disparity 48 --max-disparity 111 --quiet \
+          > "$OUT/log/rectify_scared.log" 2>&1 || return 1
+      fi
+      /usr/bin/python3 "$ES_ROOT/scripts/frames_to_bag.py" --left "${rect}_left.png" \
+        --right "${rect}_right.png" --crop 960x540 --pan "$REAL_FRAMES" --ns "$NS" \
+        --out "$BAG" > "$OUT/log/bag_real960.log" 2>&1 || return 1
+    fi
+    ;;
+  *)
+    echo "[bench_ros] unknown case $1" >&2
+    return 1
+    ;;
+  esac
+  echo "[bench_ros] $1: $DESC, $NFRAMES frames at $(/usr/bin/python3 -c "print(25*$RATE)") fps, disparity range $DMIN..$DMAX px"
+}
 
 roscore -p "$PORT" > "$OUT/log/roscore.log" 2>&1 &
 PIDS+=($!)
 for _ in $(seq 100); do rosparam list > /dev/null 2>&1 && break; sleep 0.2; done
 
-run_target() {  # $1 = endo_stereo | stereo_image_proc
-  local target=$1 pid name
+run_target() {  # $1 = endo_stereo | stereo_image_proc, $2 = case
+  local target=$1 case_name=$2 pid name
   rosparam delete "$NS" > /dev/null 2>&1 || true
   if [ "$target" = endo_stereo ]; then
     name="$NS/endo_stereo"
@@ -92,30 +156,31 @@ run_target() {  # $1 = endo_stereo | stereo_image_proc
       rosparam set "$name/${kv%%=*}" "${kv#*=}"
     done
     "$WS/devel/lib/endo_stereo/endo_stereo_node" __ns:="$NS" __name:=endo_stereo \
-      > "$OUT/log/$target.log" 2>&1 &
+      > "$OUT/log/${case_name}_$target.log" 2>&1 &
   else
     name="$NS/stereo_image_proc"
     ROS_PACKAGE_PATH="$("$ES_ROOT/scripts/stereo_image_proc_env.sh" "$OUT/sip_pkgs")"
     export ROS_PACKAGE_PATH
     rosparam set "$name/stereo_algorithm" 1          # SGBM
     rosparam set "$name/min_disparity" "$DMIN"
-    rosparam set "$name/disparity_range" "$RANGE"
+    rosparam set "$name/disparity_range" "$(( DMAX - DMIN + 1 ))"
     rosparam set "$name/correlation_window_size" 7   # SGBM block size (odd, 5..11 usual)
     /usr/lib/stereo_image_proc/stereo_image_proc __ns:="$NS" __name:=stereo_image_proc \
-      > "$OUT/log/$target.log" 2>&1 &
+      > "$OUT/log/${case_name}_$target.log" 2>&1 &
   fi
   pid=$!
   PIDS+=($pid)
   sleep 3
   rm -f "$OUT/.done" "$OUT/.ready"
   /usr/bin/python3 "$ES_ROOT/scripts/demo_capture.py" listen --ns "$NS" --nodelet "$name" \
-    --frames "$FRAMES" --out "$OUT/$target.json" --done-file "$OUT/.done" \
-    --ready-file "$OUT/.ready" --timeout-s 600 2> "$OUT/log/listen_$target.err" &
+    --frames "$NFRAMES" --out "$OUT/${case_name}_$target.json" --done-file "$OUT/.done" \
+    --ready-file "$OUT/.ready" --timeout-s 600 2> "$OUT/log/listen_${case_name}_$target.err" &
   local lpid=$!
   PIDS+=($lpid)
   for _ in $(seq 100); do [ -e "$OUT/.ready" ] && break; sleep 0.1; done
-  echo "[bench_ros] $target: playing"
-  rosbag play -q --wait-for-subscribers -r "$RATE" "$BAG" > "$OUT/log/play_$target.log" 2>&1
+  echo "[bench_ros] $case_name / $target: playing"
+  rosbag play -q --wait-for-subscribers -r "$RATE" "$BAG" \
+    > "$OUT/log/play_${case_name}_$target.log" 2>&1
   touch "$OUT/.done"
   wait "$lpid"
   kill "$pid" 2>/dev/null
@@ -123,46 +188,73 @@ run_target() {  # $1 = endo_stereo | stereo_image_proc
   rm -f "$OUT/.done" "$OUT/.ready"
 }
 
-for t in $TARGETS; do run_target "$t"; done
+CASE_LINES=()
+for c in $CASES; do
+  if ! prepare_case "$c"; then
+    echo "[bench_ros] $c: the bag could not be prepared (see $OUT/log/)" >&2
+    continue
+  fi
+  for t in $TARGETS; do
+    rm -f "$OUT/${c}_$t.json"
+    run_target "$t" "$c"
+  done
+  CASE_LINES+=("$c|$DESC|$NFRAMES|$DMIN|$DMAX")
+done
 
-/usr/bin/python3 - "$OUT" "$NS" "$BENCH_NOTES" "$WIDTH" "$HEIGHT" "$FRAMES" "$RATE" "$DMIN" "$DMAX" $TARGETS <<'EOF'
-import json, os, platform, subprocess, sys, time
-out, ns, notes, w, h, frames, rate, dmin, dmax = sys.argv[1:10]
-targets = sys.argv[10:]
+/usr/bin/python3 - "$OUT" "$NS" "$BENCH_NOTES" "$RATE" "$TARGETS" "${CASE_LINES[@]}" <<'PYEOF'
+import json, os, subprocess, sys, time
+out, ns, notes, rate, targets = sys.argv[1:6]
+targets = targets.split()
+cases = [c.split("|") for c in sys.argv[6:]]
 def f(v, fmt="%.1f"):
     return "n/a" if v is None else fmt % v
 cpu = subprocess.run("nproc", capture_output=True, text=True).stdout.strip()
 load = open("/proc/loadavg").read().split()[:3]
-pipeline_notes = []
-rows = ["| node | pairs in | outputs | dropped | output rate (Hz) | latency median (ms) | latency p90 (ms) | density |",
-        "|---|---|---|---|---|---|---|---|"]
-for t in targets:
-    p = os.path.join(out, t + ".json")
-    if not os.path.exists(p):
-        rows.append("| %s | (did not run) | | | | | | |" % t)
-        continue
-    r = json.load(open(p)).get(ns, {})
-    diag = r.get("nodelet_diagnostics", {})
-    dropped = r.get("dropped_or_lost")
-    if diag.get("pipeline median (ms)") is not None:
-        pipeline_notes.append("endo_stereo's own diagnostics: latency (pair complete -> published) "
-                              "median %s ms, of which Pipeline::process median %s ms."
-                              % (diag.get("latency median (ms)"), diag.get("pipeline median (ms)")))
-    if diag.get("pairs dropped") is not None:
-        dropped = "%s (nodelet: %s dropped, %s rejected)" % (dropped, diag.get("pairs dropped"),
-                                                             diag.get("pairs rejected"))
-    name = "endo_stereo (default preset)" if t == "endo_stereo" else "stereo_image_proc (SGBM, Debian)"
-    rows.append("| %s | %s | %s | %s | %s | %s | %s | %s |" % (
-        name, r.get("pairs_in"), r.get("outputs"), dropped,
-        f(r.get("output_rate_over_input_span_hz")), f(r.get("latency_median_ms")),
-        f(r.get("latency_p90_ms")), f(r.get("density_mean"), "%.3f")))
+rows = ["| stream | node | pairs in | outputs | dropped | output rate (Hz) | latency median (ms) | latency p90 (ms) | density |",
+        "|---|---|---:|---:|---|---:|---:|---:|---:|"]
+results = []
+notes_lines = []
+for name, desc, nframes, dmin, dmax in cases:
+    for t in targets:
+        p = os.path.join(out, "%s_%s.json" % (name, t))
+        node = "endo_stereo (default preset)" if t == "endo_stereo" else "stereo_image_proc (SGBM, Debian)"
+        stream = "%s, %s frames, %s..%s" % (desc, nframes, dmin, dmax)
+        if not os.path.exists(p):
+            rows.append("| %s | %s | (did not run) | | | | | | |" % (stream, node))
+            continue
+        r = json.load(open(p)).get(ns, {})
+        diag = r.get("nodelet_diagnostics", {})
+        dropped = r.get("dropped_or_lost")
+        if diag.get("pairs dropped") is not None:
+            dropped = "%s (nodelet: %s dropped, %s rejected)" % (dropped, diag.get("pairs dropped"),
+                                                                 diag.get("pairs rejected"))
+        if diag.get("pipeline median (ms)") is not None:
+            notes_lines.append("%s: endo_stereo's own diagnostics: latency (pair complete -> "
+                               "published) median %s ms, of which Pipeline::process median %s ms."
+                               % (desc, diag.get("latency median (ms)"),
+                                  diag.get("pipeline median (ms)")))
+        rows.append("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+            stream, node, r.get("pairs_in"), r.get("outputs"), dropped,
+            f(r.get("output_rate_over_input_span_hz")), f(r.get("latency_median_ms")),
+            f(r.get("latency_p90_ms")), f(r.get("density_mean"), "%.3f")))
+        results.append({"case": name, "description": desc, "frames": int(nframes),
+                        "min_disparity": int(dmin), "max_disparity": int(dmax), "node": t,
+                        "pairs_in": r.get("pairs_in"), "outputs": r.get("outputs"),
+                        "dropped_or_lost": r.get("dropped_or_lost"),
+                        "nodelet_pairs_dropped": diag.get("pairs dropped"),
+                        "nodelet_pairs_rejected": diag.get("pairs rejected"),
+                        "output_rate_hz": r.get("output_rate_over_input_span_hz"),
+                        "latency_median_ms": r.get("latency_median_ms"),
+                        "latency_p90_ms": r.get("latency_p90_ms"),
+                        "density_mean": r.get("density_mean"),
+                        "pipeline_median_ms": diag.get("pipeline median (ms)")})
+stamp = time.strftime("%Y-%m-%d %H:%M %Z")
 text = "\n".join([
-    "# ROS benchmark (issue 5): endo_stereo vs stereo_image_proc on the same bag",
+    "# The nodelet against stereo_image_proc on the same bags",
     "",
-    "Measured %s by scripts/bench_ros.sh: a synthetic surgical bag (endo_stereo_generate), %s frames"
-    " %sx%s, played with `rosbag play` at %s fps; disparity range %s..%s px for both; each node"
-    " standalone, one after the other. Machine: %s cores, load average %s before the summary."
-    % (time.strftime("%Y-%m-%d %H:%M"), frames, w, h, 25 * float(rate), dmin, dmax, cpu, " ".join(load)),
+    "Measured %s by scripts/bench_ros.sh: each bag played with `rosbag play` at %g fps; the same"
+    " disparity range for both nodes; each node standalone, one after the other. Machine: %s"
+    " cores, load average %s at the end." % (stamp, 25 * float(rate), cpu, " ".join(load)),
     "",
     *rows,
     "",
@@ -171,10 +263,13 @@ text = "\n".join([
     " Dropped: input pairs without an output (endo_stereo counts the pairs pushed out of its"
     " backlog or skipped for a newer one; stereo_image_proc drops inside its synchronizer and"
     " queues).",
-    *pipeline_notes,
+    *notes_lines,
     ""])
 os.makedirs(os.path.dirname(notes), exist_ok=True)
 open(notes, "w").write(text)
+with open(os.path.join(out, "ros_bench.json"), "w") as fh:
+    json.dump({"date": stamp, "rate_fps": 25 * float(rate), "cpus": cpu,
+               "load_average_end": " ".join(load), "runs": results}, fh, indent=2)
 print(text)
-print("[bench_ros] written to", notes)
-EOF
+print("[bench_ros] written to", notes, "and", os.path.join(out, "ros_bench.json"))
+PYEOF

@@ -7,7 +7,11 @@
 #      processed): colourised disparity, coverage map, point cloud (PLY + pictures),
 #   3. plays it again with `rosbag play` in real time (25 fps) to measure what a live feed gets:
 #      frames in/out, output rate, drops, latency,
-#   4. renders the cloud in rviz under Xvfb (when rviz is installed) and writes the figures.
+#   4. renders the cloud in rviz under Xvfb (when rviz is installed) and writes the figures,
+#   5. when ../shared/data/real is present, runs real in-vivo footage (the 150 frames of
+#      real/hamlyn_invivo1, search 0..127) through endo_stereo_evaluate: our disparity and coverage
+#      beside OpenCV BM and SGBM (out/demo/invivo/comparison.png, disparity_*.png, coverage_*.png,
+#      the table in figures.md); without the data it says so and skips this step.
 # Outputs: out/demo/ (printed at the end).
 #
 # Environment: DEMO_FRAMES (default 30), DEMO_WIDTH x DEMO_HEIGHT (default 960 x 540, the paper's
@@ -192,11 +196,30 @@ open(os.path.join(out, "figures.md"), "w").write("\n".join(lines) + "\n")
 print("\n".join(lines))
 EOF
 
+# --- 5. Real footage ----------------------------------------------------------------------------
+REAL="$(cd "$ES_ROOT/.." && pwd)/shared/data/real/hamlyn_invivo1"
+if [ -e "$REAL/left/0001.png" ]; then
+  step "real in-vivo footage: 150 frames of $REAL (ours with and without priors, OpenCV BM and SGBM)"
+  if "$WS/devel/lib/endo_stereo/endo_stereo_evaluate" --left "$REAL/left/%04d.png" \
+      --right "$REAL/right/%04d.png" --min-disparity 0 --max-disparity 127 \
+      --label "real in-vivo video (hamlyn_invivo1)" --quiet --out "$OUT/invivo" \
+      > "$OUT/invivo.md" 2> "$OUT/log/invivo.err"; then
+    { echo; echo "## Real in-vivo footage (endo_stereo_evaluate)"; cat "$OUT/invivo.md"; } >> "$OUT/figures.md"
+    cat "$OUT/invivo.md"
+  else
+    echo "[demo] ERROR: endo_stereo_evaluate failed on the in-vivo frames, see $OUT/log/invivo.err" >&2
+  fi
+else
+  echo "[demo] NOTE: the real in-vivo frames are absent ($REAL): the demo shows generated frames only."
+  echo "[demo]       Put the evaluation data beside the repository as ../shared/data to see real footage."
+fi
+
 step "done"
 echo
 echo "[demo] outputs in $OUT:"
 for f in disparity_color.png coverage.png cloud.png rviz.png left_rect.png cloud.ply figures.md \
-         paced.json realtime.json synthetic.bag; do
+         paced.json realtime.json synthetic.bag invivo/comparison.png \
+         invivo/disparity_ours.png invivo/coverage_ours.png; do
   [ -e "$OUT/$f" ] && printf '  %-20s %s\n' "$f" "$(du -h "$OUT/$f" | cut -f1)"
 done
 echo "[demo] replay it in rviz: roslaunch $ES_ROOT/launch/playback.launch bag:=$OUT/synthetic.bag rviz:=true"

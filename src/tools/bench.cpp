@@ -169,7 +169,7 @@ Method ourMethod(const std::string& name, const endo_stereo::PipelineParams& pre
 
 cv::Ptr<cv::StereoSGBM> makeSgbm(int min_disparity, int num_disparities, int uniqueness = 10,
                                  int mode = cv::StereoSGBM::MODE_SGBM) {
-  // The settings of OpenCV's samples/cpp/stereo_match.cpp, with blockSize 5 (issue 2).
+  // The settings of OpenCV's samples/cpp/stereo_match.cpp, with blockSize 5 (P1 200, P2 800).
   const int bs = 5;
   return cv::StereoSGBM::create(min_disparity, num_disparities, bs, 8 * bs * bs, 32 * bs * bs,
                                 /*disp12MaxDiff=*/1, /*preFilterCap=*/63, uniqueness,

@@ -1,13 +1,20 @@
-// endo_stereo_eval: scores the robust matcher on Middlebury-layout scenes (nonocc mask), for
-// tuning the presets and recording their figures. Not the benchmark (that one also runs OpenCV's
-// matchers): this tool is the matcher engineer's instrument.
+// endo_stereo_eval: scores the robust matcher on pairs with ground truth, for tuning the presets
+// and recording their figures; with --peers beside OpenCV StereoBM and StereoSGBM (the settings of
+// sequence_evaluation.hpp) on the same pairs.
 //
 //   endo_stereo_eval [--data DIR] [--params FILE.yaml] [--set section.field=value]...
-//                    [--scenes tsukuba,venus,teddy] [--sweep field=v1,v2,...] [--detail]
+//                    [--scenes tsukuba,venus,teddy | --no-middlebury] [--sweep field=v1,v2,...]
+//                    [--detail] [--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]
 //
-// DIR holds one folder per scene (default ../shared/data/middlebury relative to the repository).
-// Only the `matcher:` and `filter:` sections of FILE are read. The search range of a scene is
-// 0 .. max disparity from its info.txt, unless --set matcher.max_disparity=... is given.
+// DIR holds one folder per Middlebury scene (default ../shared/data/middlebury relative to the
+// repository), scored in its nonocc mask. --gt-pair adds a pair in the layout of SCARED's
+// rectified keyframes: left.png, right.png, disparity_left.tiff (float px, 0 = none),
+// occlusion_left.png (scored where 255), searched over MIN..MAX.
+// Only the `matcher:` and `filter:` sections of FILE are read. The search range of a Middlebury
+// scene is 0 .. max disparity from its info.txt, unless --set matcher.max_disparity=... is given.
+// --peers prints, per pair and method, bad2 and bad3 (shares of output pixels off by more than
+// 2 / 3 px), the mean error over output pixels, density (output pixels / ground-truth pixels in
+// the mask) and the time of one run; --json writes the same.
 #include <yaml-cpp/yaml.h>
 
 #include <chrono>
@@ -16,13 +23,18 @@
 #include <cstdlib>
 #include <iostream>
 #include <map>
+#include <fstream>
+#include <limits>
 #include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <string>
 #include <vector>
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
+#include "endo_stereo/core/sequence_evaluation.hpp"
+#include "json_writer.hpp"
 
 namespace es = endo_stereo;
 
@@ -127,6 +139,50 @@ std::vector<std::string> split(const std::string& s, char sep) {
   return out;
 }
 
+// A rectified pair in the layout of SCARED's keyframes (see the header comment).
+es::MiddleburyScene loadGtPair(const std::string& dir, int min_d, int max_d) {
+  es::MiddleburyScene s;
+  const size_t end = dir.find_last_not_of('/');
+  const std::string trimmed = dir.substr(0, end == std::string::npos ? 0 : end + 1);
+  s.name = trimmed.substr(trimmed.find_last_of('/') == std::string::npos
+                              ? 0
+                              : trimmed.find_last_of('/') + 1);
+  s.left = cv::imread(dir + "/left.png", cv::IMREAD_GRAYSCALE);
+  s.right = cv::imread(dir + "/right.png", cv::IMREAD_GRAYSCALE);
+  const cv::Mat gt = cv::imread(dir + "/disparity_left.tiff", cv::IMREAD_UNCHANGED);
+  const cv::Mat occ = cv::imread(dir + "/occlusion_left.png", cv::IMREAD_GRAYSCALE);
+  if (s.left.empty() || s.right.empty() || gt.empty() || occ.empty()) {
+    throw std::runtime_error("cannot read left.png, right.png, disparity_left.tiff and "
+                             "occlusion_left.png in " + dir);
+  }
+  if (gt.type() != CV_32FC1 || gt.size() != s.left.size() || s.right.size() != s.left.size() ||
+      occ.size() != s.left.size()) {
+    throw std::runtime_error(dir + ": sizes differ or disparity_left.tiff is not float");
+  }
+  s.gt = gt.clone();
+  s.gt.setTo(std::numeric_limits<float>::quiet_NaN(), gt <= 0.f);
+  s.nonocc = occ == 255;
+  s.disc = cv::Mat::zeros(s.left.size(), CV_8UC1);
+  s.all = occ > 0;
+  (void)min_d;  // the caller keeps the range's start; the scene records its end
+  s.max_disp = max_d;
+  return s;
+}
+
+// Share of output pixels in the mask with |d - gt| > t.
+double shareAbove(const cv::Mat& d, const cv::Mat& gt, const cv::Mat& mask, double t) {
+  int64_t out = 0, bad = 0;
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) {
+      const float v = d.at<float>(y, x), g = gt.at<float>(y, x);
+      if (!mask.at<uint8_t>(y, x) || !std::isfinite(g) || !std::isfinite(v)) continue;
+      ++out;
+      bad += std::fabs(v - g) > t;
+    }
+  }
+  return out ? double(bad) / out : 0.0;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
@@ -139,6 +195,9 @@ int main(int argc, char** argv) {
   bool fixed_max = false;
   std::string sweep_key;
   std::vector<std::string> sweep_values{""};
+  bool peers = false, middlebury = true;
+  std::string json_path;
+  std::vector<std::pair<std::string, std::string>> gt_pairs;  // folder, "MIN:MAX"
   for (int i = 1; i < argc; ++i) {
     const std::string a = argv[i];
     auto next = [&]() -> std::string {
@@ -182,20 +241,129 @@ int main(int argc, char** argv) {
       dump_dir = next();
     } else if (a == "--detail") {
       detail = true;
+    } else if (a == "--peers") {
+      peers = true;
+    } else if (a == "--json") {
+      json_path = next();
+    } else if (a == "--no-middlebury") {
+      middlebury = false;
+    } else if (a == "--gt-pair") {
+      gt_pairs.emplace_back(next(), "");
+    } else if (a == "--gt-range") {
+      if (gt_pairs.empty() || !gt_pairs.back().second.empty()) {
+        std::cerr << "--gt-range MIN:MAX follows its --gt-pair DIR\n";
+        return 2;
+      }
+      gt_pairs.back().second = next();
     } else {
       std::cerr << "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
-                   "[--scenes a,b] [--sweep k=v1,v2] [--detail]\n";
+                   "[--scenes a,b | --no-middlebury] [--sweep k=v1,v2] [--detail] "
+                   "[--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]\n";
       return 2;
     }
   }
   std::vector<es::MiddleburyScene> loaded;
-  for (const auto& name : scenes) {
+  std::vector<int> min_disparity;  // per loaded scene
+  for (const auto& name : middlebury ? scenes : std::vector<std::string>{}) {
     try {
       loaded.push_back(es::loadMiddleburyScene(data + "/" + name));
+      min_disparity.push_back(0);
     } catch (const std::exception& e) {
       std::cerr << e.what() << "\n";
       return 1;
     }
+  }
+  for (const auto& [dir, range] : gt_pairs) {
+    int lo = 0, hi = 0;
+    if (std::sscanf(range.c_str(), "%d:%d", &lo, &hi) != 2 || lo < 0 || hi < lo) {
+      std::cerr << "--gt-pair " << dir << " needs --gt-range MIN:MAX (got '" << range << "')\n";
+      return 2;
+    }
+    try {
+      loaded.push_back(loadGtPair(dir, lo, hi));
+      min_disparity.push_back(lo);
+    } catch (const std::exception& e) {
+      std::cerr << e.what() << "\n";
+      return 1;
+    }
+  }
+  if (loaded.empty()) {
+    std::cerr << "no pair to score\n";
+    return 2;
+  }
+  if (peers) {
+    // Ours and OpenCV's matchers on the same gray pairs, same range (OpenCV's rounded up to a
+    // multiple of 16 disparities).
+    endo_stereo::tools::JsonWriter j;
+    j.beginObject();
+    j.key("tool").value("endo_stereo_eval --peers");
+    j.key("pairs").beginArray();
+    std::printf("| pair | method | bad2 %% | bad3 %% | mean error px | density %% | ms |\n"
+                "|---|---|---:|---:|---:|---:|---:|\n");
+    for (size_t k = 0; k < loaded.size(); ++k) {
+      const es::MiddleburyScene& s = loaded[k];
+      const int lo = min_disparity[k];
+      es::MatcherParams ms = mp;
+      ms.min_disparity = lo;
+      if (!fixed_max) ms.max_disparity = s.max_disp;
+      std::string err = ms.validate();
+      if (err.empty()) err = fp.validate();
+      if (!err.empty()) {
+        std::cerr << err << "\n";
+        return 2;
+      }
+      const int num_d = es::referenceNumDisparities(lo, ms.max_disparity);
+      j.beginObject();
+      j.key("pair").value(s.name).key("width").value(s.left.cols).key("height").value(s.left.rows);
+      j.key("min_disparity").value(lo).key("max_disparity").value(ms.max_disparity);
+      j.key("methods").beginArray();
+      for (const char* method : {"ours", "OpenCV BM", "OpenCV SGBM"}) {
+        cv::Mat d;
+        const auto t0 = std::chrono::steady_clock::now();
+        if (std::string(method) == "ours") {
+          es::RobustMatcher matcher(ms, fp);
+          es::MatchResult r;
+          matcher.compute(s.left, s.right, r);
+          d = r.disparity;
+        } else {
+          cv::Ptr<cv::StereoMatcher> m;
+          if (std::string(method) == "OpenCV BM") {
+            m = es::makeReferenceBm(lo, num_d);
+          } else {
+            m = es::makeReferenceSgbm(lo, num_d);
+          }
+          cv::Mat raw;
+          m->compute(s.left, s.right, raw);
+          d = es::referenceDisparityToFloat(raw, lo);
+        }
+        const double ms_taken = std::chrono::duration<double, std::milli>(
+                                    std::chrono::steady_clock::now() - t0).count();
+        const es::DisparityScore sc = es::scoreDisparity(d, s.gt, s.nonocc);
+        const double bad3 = shareAbove(d, s.gt, s.nonocc, 3.0);
+        std::printf("| %s %dx%d, %d..%d | %s | %.2f | %.2f | %.2f | %.1f | %.1f |\n",
+                    s.name.c_str(), s.left.cols, s.left.rows, lo, ms.max_disparity, method,
+                    100 * sc.bad2, 100 * bad3, sc.mean_abs_error, 100 * sc.density, ms_taken);
+        j.beginObject();
+        j.key("method").value(method);
+        j.key("bad2").value(sc.bad2).key("bad3").value(bad3);
+        j.key("mean_abs_error_px").value(sc.mean_abs_error).key("density").value(sc.density);
+        j.key("n_out").value(sc.n_out).key("n_gt").value(sc.n_gt).key("ms").value(ms_taken);
+        j.endObject();
+      }
+      j.endArray();
+      j.endObject();
+    }
+    j.endArray();
+    j.endObject();
+    if (!json_path.empty()) {
+      std::ofstream f(json_path);
+      f << j.str();
+      if (!f) {
+        std::cerr << "cannot write " << json_path << "\n";
+        return 1;
+      }
+    }
+    return 0;
   }
   std::printf("%-10s %-8s %7s %7s %8s %7s %8s %8s %8s\n", "sweep", "scene", "bad1%", "bad2%",
               "density%", "mae", "disc_b2%", "ms", "valid");
@@ -210,8 +378,10 @@ int main(int argc, char** argv) {
       }
     }
     double worst_b2 = 0, sum_b2 = 0, min_dens = 1;
-    for (const auto& s : loaded) {
+    for (size_t k = 0; k < loaded.size(); ++k) {
+      const es::MiddleburyScene& s = loaded[k];
       es::MatcherParams ms = m;
+      ms.min_disparity = min_disparity[k];
       if (!fixed_max) ms.max_disparity = s.max_disp;
       std::string err = ms.validate();
       if (err.empty()) err = f.validate();

@@ -1,4 +1,5 @@
-// endo_stereo_temporal_bench: the temporal targets of issue 4 on a generated surgical sequence.
+// endo_stereo_temporal_bench: the temporal-prior targets (density, bad2, coverage, time against
+// SGBM) on a generated surgical sequence.
 // For every frame of a synthetic 960x540 sequence (instrument, highlights, noise) it runs, on the
 // same rectified gray frames in the same process:
 //   1. RobustMatcher with temporal priors (TemporalTracker: priors, fusion, coverage),

@@ -1,0 +1,326 @@
+#!/usr/bin/python3
+"""Writes BENCHMARKS.md, docs/benchmark_results.json and docs/bench_*.png from one run of
+scripts/bench.sh (its outputs in out/bench and out/bench_ros). `make bench` calls it last; run it
+alone to rebuild the page from the outputs already there:
+
+  scripts/bench_report.py [--out out/bench] [--ros out/bench_ros] [--root .]
+"""
+import argparse
+import json
+import os
+import re
+import shutil
+import subprocess
+import time
+
+ROOT = os.path.normpath(os.path.join(os.path.dirname(os.path.abspath(__file__)), ".."))
+
+
+def load(path):
+    try:
+        with open(path) as f:
+            return json.load(f)
+    except (OSError, ValueError):
+        return None
+
+
+def git(*args):
+    r = subprocess.run(["git", "-C", ROOT] + list(args), capture_output=True, text=True)
+    return r.stdout.strip() if r.returncode == 0 else ""
+
+
+def pct(v, digits=1):
+    return "n/a" if v is None else ("%." + str(digits) + "f") % (100.0 * v)
+
+
+def num(v, fmt="%.1f"):
+    return "n/a" if v is None else fmt % v
+
+
+def machine_line(m):
+    return "%s, %d logical CPUs, OpenCV %s (%d threads); load average %s at the start, %s at the end" % (
+        m.get("cpu", "?"), m.get("logical_cpus", 0), m.get("opencv", "?"),
+        m.get("opencv_threads", 0), m.get("load_average_start", "?").split()[0],
+        m.get("load_average_end", "?").split()[0])
+
+
+def busy(m):
+    """True when the 1-minute load average exceeded the CPU count at the start or the end."""
+    try:
+        n = float(m.get("logical_cpus", 1))
+        return max(float(m["load_average_start"].split()[0]),
+                   float(m["load_average_end"].split()[0])) > n
+    except (KeyError, ValueError, IndexError):
+        return False
+
+
+class Page:
+    def __init__(self, commands, commit, dirty):
+        self.lines = []
+        self.commands = commands
+        self.commit = commit + (" with uncommitted changes" if dirty else "")
+        self.any_busy = False
+
+    def add(self, *lines):
+        self.lines.extend(lines)
+
+    def provenance(self, cmd_id, machine=None, extra=None):
+        cmd = self.commands.get(cmd_id)
+        if cmd:
+            self.add("Command: `%s`  " % cmd)
+        text = "Commit %s" % self.commit
+        if machine:
+            text += "; " + machine_line(machine)
+            if busy(machine):
+                self.any_busy = True
+                text += " (**busy machine: times not representative**)"
+        if extra:
+            text += "; " + extra
+        self.add(text + ".", "")
+
+
+def evaluation_table(page, ev):
+    page.add("| method | density median %% | density mean %% | jumps > %g px %% | central covered"
+             " every %d frames %% | central never %% | ms/frame median | time / SGBM | CPU ms"
+             " median |" % (ev["jump_px"], ev["window_frames"]),
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    for m in ev["methods"]:
+        timed = "ms_median" in m
+        page.add("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+            m["name"], pct(m["density_median"]), pct(m["density_mean"]), pct(m["jump_share"], 2),
+            pct(m["coverage_every_window"]), pct(m["coverage_never"]),
+            num(m.get("ms_median")) if timed else "-",
+            num(m.get("time_over_sgbm"), "%.2f") if timed else "-",
+            num(m.get("cpu_ms_median")) if timed else "-"))
+    page.add("")
+
+
+def ros_table(page, runs):
+    page.add("| stream | node | pairs in | outputs | dropped (nodelet's own count) | output rate Hz | latency median ms | latency p90 ms | density |",
+             "|---|---|---:|---:|---|---:|---:|---:|---:|")
+    for r in runs:
+        node = "endo_stereo (default preset)" if r["node"] == "endo_stereo" else "stereo_image_proc (SGBM)"
+        dropped = "n/a" if r.get("dropped_or_lost") is None else str(r["dropped_or_lost"])
+        if r.get("nodelet_pairs_dropped") is not None:
+            dropped += " (%s dropped, %s rejected)" % (r["nodelet_pairs_dropped"],
+                                                      r.get("nodelet_pairs_rejected"))
+        page.add("| %s, %d frames, %d..%d | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+            r["description"], r["frames"], r["min_disparity"], r["max_disparity"], node,
+            r.get("pairs_in"), r.get("outputs"), dropped, num(r.get("output_rate_hz")),
+            num(r.get("latency_median_ms")), num(r.get("latency_p90_ms")),
+            num(r.get("density_mean"), "%.3f")))
+    page.add("")
+
+
+def demote(md_text):
+    """The printed tables of endo_stereo_bench, headings moved two levels down, title dropped."""
+    out = []
+    for line in md_text.splitlines():
+        if line.startswith("# "):
+            continue
+        if line.startswith("## Precision-density sweep"):
+            break  # the sweep is in docs/precision_density.{csv,png}
+        if line.startswith("## "):
+            line = "#### " + line[3:]
+        out.append(line)
+    while out and not out[-1].strip():
+        out.pop()
+    return out
+
+
+def main():
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--out", default="out/bench")
+    ap.add_argument("--ros", default="out/bench_ros")
+    a = ap.parse_args()
+    os.chdir(ROOT)
+    commands = {}
+    if os.path.exists(os.path.join(a.out, "commands.tsv")):
+        for line in open(os.path.join(a.out, "commands.tsv")):
+            if "\t" in line:
+                k, v = line.rstrip("\n").split("\t", 1)
+                commands[k] = v
+    commit = git("rev-parse", "--short", "HEAD") or "unknown"
+    # Uncommitted changes to anything but this run's own outputs make the commit an approximation.
+    outputs = ("BENCHMARKS.md", "docs/benchmark_results.json", "docs/precision_density.csv",
+               "docs/precision_density.png", "docs/bench_invivo.png", "docs/bench_generated.png")
+    dirty = any(line[3:] not in outputs
+                for line in git("status", "--porcelain", "--untracked-files=no").splitlines())
+    page = Page(commands, commit, dirty)
+    ev = {k: load(os.path.join(a.out, k, "evaluation.json"))
+          for k in ("invivo", "real960_static", "real960_moving", "generated")}
+    gt = load(os.path.join(a.out, "groundtruth.json"))
+    scenes = load(os.path.join(a.out, "scenes.json"))
+    ros = load(os.path.join(a.ros, "ros_bench.json")) or {"runs": []}
+    date = time.strftime("%Y-%m-%d %H:%M %Z")
+    any_machine = next((e["machine"] for e in ev.values() if e), None)
+
+    page.add("# Benchmarks", "",
+             "Written by `make bench` (scripts/bench.sh, then scripts/bench_report.py, on %s): every"
+             " figure below comes from that one run; edit the scripts, not this page. The raw"
+             " results are in [docs/benchmark_results.json](docs/benchmark_results.json)." % date, "",
+             "- Commit: %s." % page.commit,
+             "- Machine: %s." % (machine_line(any_machine) if any_machine else "see the tables"),
+             "- Real recordings come from `../shared/data/real` beside the repository (its README"
+             " names the sources); without it `make bench` says so and writes the generated"
+             " tables only.",
+             "- Times are wall-clock medians per frame on this machine; ratios to OpenCV SGBM"
+             " measured in the same process on the same frames are the figures to compare across"
+             " machines. When the load average exceeds the CPU count the table says so: its times"
+             " are then not representative. CPU ms above the wall time means more than one core"
+             " worked; below it, the process waited for a core.", "")
+
+    page.add("## Definitions", "",
+             "On a recording without ground truth (`endo_stereo_evaluate`, README: \"Evaluating a"
+             " recording\"), each method's disparity maps, frame by frame:",
+             "- **density**: share of the frame's pixels with a value (per frame; median and mean over"
+             " frames);",
+             "- **jumps**: among pixels with a value in two consecutive frames, the share whose"
+             " disparity changed by more than 2 px (pooled over all frame pairs). On slowly moving"
+             " tissue such a jump is almost always an error;",
+             "- **coverage**: share of the central pixels (the middle half of the image in each"
+             " direction) with a value in every window of 10 consecutive frames; **never**: without"
+             " a value in any frame;",
+             "- **ours, fused output**: the pipeline's temporally fused map (the latest value measured"
+             " within `temporal.fused_max_age_frames`); the lines without \"fused\" count only values"
+             " measured on that frame;",
+             "- ours: `Pipeline` with the built-in defaults (as `endo_stereo_cli`), with temporal"
+             " priors and without; time = the whole `Pipeline::process` call (2 threads). OpenCV BM:"
+             " blockSize 15, uniquenessRatio 15; SGBM (MODE_SGBM): blockSize 5, P1 200, P2 800,"
+             " uniquenessRatio 10; every other setting OpenCV's default; time = `compute()` on the"
+             " same rectified gray pair. OpenCV searches a multiple of 16 disparities and gives no"
+             " value in the leftmost columns where the search would leave the image.",
+             "", "With ground truth (`endo_stereo_eval --peers`): bad2 / bad3 = share of output pixels"
+             " off by more than 2 / 3 px, mean error over output pixels, density = output pixels /"
+             " ground-truth pixels in the mask (SCARED: occlusion mask = 255; Middlebury: nonocc).", "")
+
+    # --- 1. real -------------------------------------------------------------------------------
+    page.add("## 1. Real recordings", "")
+    if not any(ev[k] for k in ("invivo", "real960_static", "real960_moving")):
+        page.add("Not measured in this run: `../shared/data/real` was absent.", "")
+    if ev["invivo"]:
+        e = ev["invivo"]
+        page.add("### 1.1 In-vivo video: real/hamlyn_invivo1, %d frames %dx%d, search %d..%d" % (
+            e["frames"], e["width"], e["height"], e["min_disparity"], e["max_disparity"]), "",
+            "A live da Vinci recording (Hamlyn Centre, rectified): bleeding tissue, specular"
+            " highlights, two instruments, breathing motion.", "")
+        page.provenance("invivo", e["machine"])
+        evaluation_table(page, e)
+        page.add("Frame %d: the left image, each method's disparity on one colour scale (0..%d px),"
+                 " the pixels that jumped since the previous frame, and each method's coverage map"
+                 " over the whole sequence:" % (e["picture_frame"] + 1, e["max_disparity"]), "",
+                 "![in-vivo comparison](docs/bench_invivo.png)", "")
+    if ev["real960_static"] or ev["real960_moving"]:
+        page.add("### 1.2 A real frame at 960x540: SCARED dataset 1, search 48..111", "",
+                 "The raw 1280x1024 da Vinci Xi pair of real/scared_ds1_pair, rectified with its"
+                 " published calibration by `endo_stereo_cli --calib`, then cut to its centre 960x540 (the paper's working size) by"
+                 " `endo_stereo_evaluate --crop`. Two sequences are made from this one pair:", "",
+                 "- **static**: the same pair 10 times. Ours without priors searches the full range"
+                 " on every frame: its time is the full-search time; with priors, frames after the"
+                 " first search narrowed ranges;",
+                 "- **moving**: 75 frames in which the 960x540 crop window moves on a circle of"
+                 " radius 24 px around the centre, one turn in 75 frames (3 s at 25 fps, about 2 px"
+                 " per frame): a slow camera pan over real tissue. Every frame is an exact crop of"
+                 " the rectified pair (integer offsets, no resampling); the tissue itself does not"
+                 " deform.", "")
+        page.add("Rectification: `%s`" % commands.get("scared_rectify", "n/a"), "")
+        for key, title in (("real960_static", "Static (full search)"), ("real960_moving", "Moving crop")):
+            e = ev[key]
+            if not e:
+                continue
+            page.add("#### %s: %d frames" % (title, e["frames"]), "")
+            page.provenance(key, e["machine"])
+            evaluation_table(page, e)
+        page.add("No picture of the SCARED frames is published here: the data is for evaluation,"
+                 " not for redistribution.", "")
+    if gt:
+        page.add("### 1.3 Pairs with ground truth", "")
+        page.provenance("groundtruth", any_machine,
+                        "each time is one run (not a median): a rough figure")
+        page.add("| pair | method | bad2 % | bad3 % | mean error px | density % | ms |",
+                 "|---|---|---:|---:|---:|---:|---:|")
+        pairs = sorted(gt["pairs"], key=lambda p: 0 if p["pair"].startswith("scared") else 1)
+        for p in pairs:
+            for m in p["methods"]:
+                page.add("| %s %dx%d, %d..%d | %s | %s | %s | %s | %s | %s |" % (
+                    p["pair"], p["width"], p["height"], p["min_disparity"], p["max_disparity"],
+                    m["method"], pct(m["bad2"], 2), pct(m["bad3"], 2),
+                    num(m["mean_abs_error_px"], "%.2f"), pct(m["density"]), num(m["ms"])))
+        page.add("", "scared_ds1_kf2_gt: a rectified SCARED keyframe with structured-light ground"
+                 " truth (590x512). Middlebury tsukuba, venus, teddy: search 0..their largest"
+                 " disparity.", "")
+    real_ros = [r for r in ros["runs"] if r["case"] in ("invivo", "real960")]
+    if real_ros:
+        page.add("### 1.4 The nodelet on real streams at 25 fps", "",
+                 "The in-vivo frames and the moving 960x540 SCARED crop (100 frames, the same"
+                 " circle) as bags (scripts/frames_to_bag.py: rectified camera_info), played with"
+                 " `rosbag play` through endo_stereo's node and Debian's stereo_image_proc (SGBM,"
+                 " block size 7), one after the other, same disparity range.", "")
+        page.provenance("bench_ros", None, "%s CPUs, load average %s at the end; %s" % (
+            ros.get("cpus"), ros.get("load_average_end"), ros.get("date")))
+        ros_table(page, real_ros)
+        page.add("Latency: the left image's arrival at a listener node to the arrival of the"
+                 " disparity with the same stamp at that listener. Dropped: pairs in without an"
+                 " output.", "")
+
+    # --- 2. generated --------------------------------------------------------------------------
+    page.add("## 2. Generated scenes", "")
+    if ev["generated"]:
+        e = ev["generated"]
+        page.add("### 2.1 A generated surgical sequence: %d frames %dx%d, search %d..%d" % (
+            e["frames"], e["width"], e["height"], e["min_disparity"], e["max_disparity"]), "",
+            "endo_stereo_generate (deforming textured tissue, vessels, highlights, a moving"
+            " instrument; `%s`)." % commands.get("generate", "n/a"), "")
+        page.provenance("generated", e["machine"])
+        evaluation_table(page, e)
+        page.add("![generated comparison](docs/bench_generated.png)", "")
+    scenes_md = os.path.join(a.out, "scenes.md")
+    if scenes and os.path.exists(scenes_md):
+        page.add("### 2.2 Scenes with ground truth, beside OpenCV's quasi-dense matcher", "",
+                 "endo_stereo_bench: Middlebury and two synthetic scenes with exact ground truth"
+                 " (nonocc mask, errors among output pixels), our default and paper presets"
+                 " (matcher only) beside OpenCV BM (blockSize 9, the settings of OpenCV's"
+                 " stereo_match sample), SGBM and cv::stereo::QuasiDenseStereo; then the 960x540"
+                 " timing case; the precision-density sweep is plotted in"
+                 " [docs/precision_density.png](docs/precision_density.png)"
+                 " ([csv](docs/precision_density.csv)).", "")
+        m = {"cpu": scenes.get("cpu"), "logical_cpus": any_machine.get("logical_cpus", 0) if any_machine else 0,
+             "opencv": scenes.get("opencv"), "opencv_threads": scenes.get("opencv_threads", 0),
+             "load_average_start": scenes.get("load_average_start", "?"),
+             "load_average_end": scenes.get("load_average_start", "?")}
+        page.provenance("scenes", m, "%d repetitions per timing (median)" % scenes.get("repeats", 0))
+        page.add(*[l for l in demote(open(scenes_md).read()) if not l.startswith("machine:")])
+        page.add("")
+    gen_ros = [r for r in ros["runs"] if r["case"] == "synthetic"]
+    if gen_ros:
+        page.add("### 2.3 The nodelet on a generated stream at 25 fps", "")
+        page.provenance("bench_ros", None, "%s CPUs, load average %s at the end; %s" % (
+            ros.get("cpus"), ros.get("load_average_end"), ros.get("date")))
+        ros_table(page, gen_ros)
+
+    text = "\n".join(page.lines).rstrip() + "\n"
+    text = re.sub(r"\n{3,}", "\n\n", text)
+    with open("BENCHMARKS.md", "w") as f:
+        f.write(text)
+    # Pictures: only of data that may be redistributed (the in-vivo frames are MIT-licensed; SCARED
+    # is not redistributed).
+    for key, name in (("invivo", "bench_invivo.png"), ("generated", "bench_generated.png")):
+        src = os.path.join(a.out, key, "comparison.png")
+        if os.path.exists(src):
+            shutil.copyfile(src, os.path.join("docs", name))
+    combined = {"date": date, "commit": page.commit, "commands": commands,
+                "real": {"invivo": ev["invivo"], "real960_static": ev["real960_static"],
+                         "real960_moving": ev["real960_moving"], "ground_truth": gt},
+                "generated": {"sequence": ev["generated"], "scenes": scenes},
+                "ros": ros}
+    text_json = json.dumps(combined, indent=1)
+    # Per-frame series on one line each (one line per number would run to thousands of lines).
+    text_json = re.sub(r"\[\s*([-0-9.eE+, \n]*?)\s*\]",
+                       lambda m: "[" + re.sub(r"\s+", " ", m.group(1)).strip() + "]", text_json)
+    with open("docs/benchmark_results.json", "w") as f:
+        f.write(text_json + "\n")
+    print("bench_report.py: BENCHMARKS.md (%d lines), docs/benchmark_results.json" % text.count("\n"))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,875 @@
+// endo_stereo_evaluate: how the robust matcher compares with OpenCV's StereoBM and StereoSGBM on a
+// recording without ground truth. Runs the Pipeline (temporal priors on, and off) and both OpenCV
+// matchers on the same rectified frames, and reports per method density, temporal stability
+// (disparity jumps between consecutive frames), coverage of the central pixels and time per
+// frame; pictures of one frame. The metrics are sequence_evaluation.hpp's. `--help` lists flags.
+//
+// Exit status: 0 success; 1 an input could not be read or processed, or an output not written;
+// 2 bad usage.
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <ctime>
+#include <fstream>
+#include <functional>
+#include <iostream>
+#include <memory>
+#include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+#include <opencv2/imgcodecs.hpp>
+#include <opencv2/imgproc.hpp>
+#include <string>
+#include <vector>
+
+#include "endo_stereo/core/calibration_io.hpp"
+#include "endo_stereo/core/image_io.hpp"
+#include "endo_stereo/core/params_io.hpp"
+#include "endo_stereo/core/pipeline.hpp"
+#include "endo_stereo/core/sequence_evaluation.hpp"
+#include "frame_sources.hpp"
+#include "json_writer.hpp"
+
+namespace {
+
+using endo_stereo::tools::Frame;
+using endo_stereo::tools::FrameSource;
+using endo_stereo::tools::isPattern;
+using endo_stereo::tools::JsonWriter;
+using endo_stereo::tools::validPattern;
+using Clock = std::chrono::steady_clock;
+
+constexpr int kExitOk = 0;
+constexpr int kExitInput = 1;
+constexpr int kExitUsage = 2;
+
+const char* kUsage =
+    R"(endo_stereo_evaluate - ours beside OpenCV BM and SGBM on a recording without ground truth
+
+Usage:
+  endo_stereo_evaluate --left L --right R --min-disparity N --max-disparity N [options]
+  endo_stereo_evaluate --bag FILE.bag --min-disparity N --max-disparity N [options]
+
+Input (the same frames go to every method):
+  --left PATH, --right PATH   a stereo pair, or printf patterns (left/%04d.png) for a sequence
+  --first N, --count N        first index (default 0, or 1 when frame 0 is missing) and number of
+                              frames of a sequence (default: until the first missing left image)
+  --bag FILE.bag              a bag with NS/left/image_raw and NS/right/image_raw (pairs matched by
+                              stamp); when NS/left/camera_info and NS/right/camera_info hold a
+                              projection, the pipeline rectifies with them
+  --namespace NS              topic namespace of --bag (default /endoscope)
+  --fps F                     stamps of image files, i / F (default 25)
+  --crop WxH                  cut the centre W x H out of every input image (use on rectified
+                              input: the crop keeps the rows aligned)
+  --repeat N                  a single pair: N frames of the same pair (a static scene)
+  --pan N                     a single pair with --crop: N frames in which the crop window moves on
+                              a circle (radius --pan-radius px, default 24, one turn every
+                              --pan-period frames, default 75): a slow pan over a real image, every
+                              frame an exact crop (integer offsets, no resampling)
+
+Our pipeline (as endo_stereo_cli): --params FILE.yaml, --set KEY=VALUE, --calib SPEC,
+  --threads N. The input is taken as rectified unless --calib or a bag's camera_info says more.
+  --min-disparity N, --max-disparity N   the search range of every method, px (required).
+                              OpenCV's matchers search a multiple of 16 disparities from the
+                              minimum, at least up to the maximum.
+
+Evaluation:
+  --methods LIST              of ours, ours-no-priors, bm, sgbm (default: all four)
+  --jump-px T                 a change larger than T px between frames is a jump (default 2)
+  --window N                  coverage window, frames (default 10)
+  --skip-timing N             frames left out of the time medians (default 2: start-up, priors)
+  --picture-frame K           the frame (0-based position in the run) the pictures show
+                              (default: the middle one)
+  --label TEXT                a name for the recording in the table and the JSON
+
+Output:
+  --out DIR                   DIR/evaluation.json and the pictures: comparison.png (left image;
+                              per method the disparity on one colour scale, the jump map, the
+                              coverage map), left.png, disparity_*.png, jumps_*.png, coverage_*.png
+  --json FILE                 the JSON elsewhere (default DIR/evaluation.json)
+  --quiet                     no progress lines
+  --help
+
+The table goes to stdout. Density: share of pixels with a value in a frame. Jumps: among pixels
+with a value in two consecutive frames, the share whose disparity changed by more than T px.
+Coverage: share of the central pixels (middle half in each direction) with a value in every window
+of N consecutive frames; never: without a value in any frame. Ours also gets a line for its fused
+output (the latest value measured within the pipeline's temporal.fused_max_age_frames); its own
+line counts only the values measured on each frame.
+)";
+
+struct Options {
+  std::string left, right, bag, ns = "/endoscope";
+  bool has_first = false;
+  int first = 0, count = -1;
+  double fps = 25.0;
+  cv::Size crop;
+  int repeat = 0, pan = 0, pan_radius = 24, pan_period = 75;
+  std::string params_file, calib;
+  std::vector<std::string> overrides;
+  bool has_min = false, has_max = false;
+  int min_disparity = 0, max_disparity = 0;
+  bool has_threads = false;
+  int threads = 0;
+  std::vector<std::string> methods = {"ours", "ours-no-priors", "bm", "sgbm"};
+  double jump_px = 2.0;
+  int window = 10, skip_timing = 2, picture_frame = -1;
+  std::string label, out_dir, json;
+  bool quiet = false;
+};
+
+struct UsageError {
+  std::string message;
+};
+
+bool parseInt(const std::string& t, int* out) {
+  char* end = nullptr;
+  const long v = std::strtol(t.c_str(), &end, 10);
+  if (t.empty() || *end != '\0' || v < -1000000000L || v > 1000000000L) return false;
+  *out = static_cast<int>(v);
+  return true;
+}
+
+std::vector<std::string> split(const std::string& s, char sep) {
+  std::vector<std::string> out;
+  size_t start = 0;
+  while (start <= s.size()) {
+    const size_t e = s.find(sep, start);
+    const std::string item =
+        s.substr(start, e == std::string::npos ? std::string::npos : e - start);
+    if (!item.empty()) out.push_back(item);
+    if (e == std::string::npos) break;
+    start = e + 1;
+  }
+  return out;
+}
+
+Options parseArgs(int argc, char** argv) {
+  Options o;
+  auto need = [&](int& i) -> std::string {
+    if (i + 1 >= argc) throw UsageError{std::string(argv[i]) + " needs a value"};
+    return argv[++i];
+  };
+  auto needInt = [&](int& i, int lo) {
+    const std::string flag = argv[i];
+    const std::string v = need(i);
+    int out = 0;
+    if (!parseInt(v, &out) || out < lo) {
+      throw UsageError{flag + ": expected an integer >= " + std::to_string(lo) + ", got '" + v +
+                       "'"};
+    }
+    return out;
+  };
+  auto needDouble = [&](int& i) {
+    const std::string flag = argv[i];
+    const std::string v = need(i);
+    char* end = nullptr;
+    const double d = std::strtod(v.c_str(), &end);
+    if (v.empty() || *end != '\0' || !std::isfinite(d) || d <= 0) {
+      throw UsageError{flag + ": expected a number > 0, got '" + v + "'"};
+    }
+    return d;
+  };
+  for (int i = 1; i < argc; ++i) {
+    const std::string a = argv[i];
+    if (a == "--help" || a == "-h") {
+      std::cout << kUsage;
+      std::exit(kExitOk);
+    } else if (a == "--left") {
+      o.left = need(i);
+    } else if (a == "--right") {
+      o.right = need(i);
+    } else if (a == "--bag") {
+      o.bag = need(i);
+    } else if (a == "--namespace") {
+      o.ns = need(i);
+      if (!o.ns.empty() && o.ns.back() == '/') o.ns.pop_back();
+    } else if (a == "--first") {
+      o.first = needInt(i, 0);
+      o.has_first = true;
+    } else if (a == "--count") {
+      o.count = needInt(i, 1);
+    } else if (a == "--fps") {
+      o.fps = needDouble(i);
+    } else if (a == "--crop") {
+      const std::string v = need(i);
+      int w = 0, h = 0;
+      const auto parts = split(v, 'x');
+      if (parts.size() != 2 || !parseInt(parts[0], &w) || !parseInt(parts[1], &h) || w < 16 ||
+          h < 16) {
+        throw UsageError{"--crop: expected WxH (each >= 16), got '" + v + "'"};
+      }
+      o.crop = cv::Size(w, h);
+    } else if (a == "--repeat") {
+      o.repeat = needInt(i, 1);
+    } else if (a == "--pan") {
+      o.pan = needInt(i, 1);
+    } else if (a == "--pan-radius") {
+      o.pan_radius = needInt(i, 0);
+    } else if (a == "--pan-period") {
+      o.pan_period = needInt(i, 2);
+    } else if (a == "--params") {
+      o.params_file = need(i);
+    } else if (a == "--set") {
+      o.overrides.push_back(need(i));
+    } else if (a == "--calib") {
+      o.calib = need(i);
+    } else if (a == "--threads") {
+      o.threads = needInt(i, 0);
+      o.has_threads = true;
+    } else if (a == "--min-disparity") {
+      o.min_disparity = needInt(i, -100000);
+      o.has_min = true;
+    } else if (a == "--max-disparity") {
+      o.max_disparity = needInt(i, -100000);
+      o.has_max = true;
+    } else if (a == "--methods") {
+      o.methods = split(need(i), ',');
+      for (const std::string& m : o.methods) {
+        if (m != "ours" && m != "ours-no-priors" && m != "bm" && m != "sgbm") {
+          throw UsageError{"--methods: unknown method '" + m +
+                           "' (ours, ours-no-priors, bm, sgbm)"};
+        }
+      }
+      if (o.methods.empty()) throw UsageError{"--methods: empty list"};
+    } else if (a == "--jump-px") {
+      o.jump_px = needDouble(i);
+    } else if (a == "--window") {
+      o.window = needInt(i, 1);
+    } else if (a == "--skip-timing") {
+      o.skip_timing = needInt(i, 0);
+    } else if (a == "--picture-frame") {
+      o.picture_frame = needInt(i, 0);
+    } else if (a == "--label") {
+      o.label = need(i);
+    } else if (a == "--out") {
+      o.out_dir = need(i);
+    } else if (a == "--json") {
+      o.json = need(i);
+    } else if (a == "--quiet") {
+      o.quiet = true;
+    } else {
+      throw UsageError{"unknown argument '" + a + "' (see --help)"};
+    }
+  }
+  const bool files = !o.left.empty() || !o.right.empty();
+  if (files == !o.bag.empty()) throw UsageError{"give either --left and --right, or --bag"};
+  if (files && (o.left.empty() || o.right.empty())) {
+    throw UsageError{"--left and --right go together"};
+  }
+  if (!o.has_min || !o.has_max)
+    throw UsageError{"--min-disparity and --max-disparity are required"};
+  if (o.min_disparity < 0 || o.min_disparity > o.max_disparity) {
+    throw UsageError{"bad disparity range " + std::to_string(o.min_disparity) + ".." +
+                     std::to_string(o.max_disparity)};
+  }
+  if (o.repeat > 0 && o.pan > 0) throw UsageError{"--repeat and --pan exclude each other"};
+  if (o.pan > 0 && o.crop.area() == 0) throw UsageError{"--pan needs --crop WxH"};
+  if (!o.bag.empty() && (o.repeat > 0 || o.pan > 0)) {
+    throw UsageError{"--repeat and --pan take a single pair of image files"};
+  }
+  if (!o.bag.empty() && !o.calib.empty()) {
+    throw UsageError{"--calib is for image files (a bag brings its camera_info)"};
+  }
+  return o;
+}
+
+// --- methods ---------------------------------------------------------------------------------
+
+double processCpuMs() {
+  timespec ts{};
+  ::clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
+  return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
+}
+
+double median(std::vector<double> v) {
+  if (v.empty()) return std::nan("");
+  std::sort(v.begin(), v.end());
+  const size_t n = v.size();
+  return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
+}
+
+/// One disparity stream under evaluation (a method, or our fused output).
+struct Stream {
+  std::string key, name;
+  bool timed = true;  // fused streams come from the same call as their method
+  endo_stereo::SequenceMetrics metrics;
+  std::vector<double> ms, cpu_ms;
+  cv::Mat picture_disparity, picture_jumps;
+  explicit Stream(const endo_stereo::SequenceMetricsParams& p) : metrics(p) {}
+};
+
+std::string cpuModel() {
+  std::ifstream in("/proc/cpuinfo");
+  std::string line;
+  while (std::getline(in, line)) {
+    if (line.rfind("model name", 0) == 0) {
+      const size_t colon = line.find(':');
+      if (colon != std::string::npos) return line.substr(colon + 2);
+    }
+  }
+  return "unknown";
+}
+
+std::string loadAverage() {
+  std::ifstream in("/proc/loadavg");
+  std::string a, b, c;
+  in >> a >> b >> c;
+  return a + " " + b + " " + c;
+}
+
+// --- pictures --------------------------------------------------------------------------------
+
+cv::Mat toBgr(const cv::Mat& m) {
+  cv::Mat out;
+  if (m.type() == CV_8UC3) return m.clone();
+  if (m.type() == CV_8UC1) {
+    cv::cvtColor(m, out, cv::COLOR_GRAY2BGR);
+    return out;
+  }
+  CV_Error(cv::Error::StsBadArg, "toBgr: 8-bit gray or BGR expected");
+}
+
+/// A cell of the comparison figure: the picture scaled to @p width with a caption above it.
+cv::Mat cell(const cv::Mat& picture, int width, const std::string& caption) {
+  const double s = double(width) / picture.cols;
+  cv::Mat scaled;
+  cv::resize(picture, scaled, cv::Size(width, std::max(1, int(std::lround(picture.rows * s)))), 0,
+             0, cv::INTER_AREA);
+  cv::Mat out(scaled.rows + 22, width, CV_8UC3, cv::Scalar::all(255));
+  scaled.copyTo(out(cv::Rect(0, 22, width, scaled.rows)));
+  cv::putText(out, caption, cv::Point(4, 16), cv::FONT_HERSHEY_SIMPLEX, 0.45, cv::Scalar::all(0), 1,
+              cv::LINE_AA);
+  return out;
+}
+
+cv::Mat blankLike(const cv::Mat& c) { return cv::Mat(c.size(), CV_8UC3, cv::Scalar::all(255)); }
+
+void putLines(cv::Mat& m, const std::vector<std::string>& lines, int y0) {
+  int y = y0;
+  for (const std::string& l : lines) {
+    cv::putText(m, l, cv::Point(6, y), cv::FONT_HERSHEY_SIMPLEX, 0.42, cv::Scalar::all(0), 1,
+                cv::LINE_AA);
+    y += 18;
+  }
+}
+
+bool writeImage(const std::string& path, const cv::Mat& image, std::string* error) {
+  bool ok = false;
+  try {
+    ok = cv::imwrite(path, image);
+  } catch (const cv::Exception& ex) {
+    *error = "cannot write '" + path + "': " + ex.what();
+    return false;
+  }
+  if (!ok) *error = "cannot write '" + path + "'";
+  return ok;
+}
+
+/// What the JSON says about the run besides the streams.
+struct RunInfo {
+  std::string label, input, load_start;
+  int frames = 0, failed = 0, num_disp = 0, window = 0, picture = 0;
+  cv::Size size;
+  double sgbm_ms = 0.0;
+};
+
+/// Median of the times after the first @p skip frames (all of them when there are no more).
+double timingMedian(const std::vector<double>& v, int skip) {
+  const size_t k = v.size() > size_t(skip) ? size_t(skip) : 0;
+  return median(std::vector<double>(v.begin() + k, v.end()));
+}
+
+/// The evaluation's JSON (summary figures, per-frame series, machine, parameters).
+std::string evaluationJson(const Options& o, const RunInfo& r,
+                           const std::vector<std::unique_ptr<Stream>>& streams,
+                           const endo_stereo::PipelineParams* params) {
+  JsonWriter j;
+  j.beginObject();
+  j.key("tool").value("endo_stereo_evaluate");
+  j.key("label").value(r.label);
+  j.key("input").value(r.input);
+  j.key("frames").value(r.frames);
+  j.key("frames_failed").value(r.failed);
+  j.key("width").value(r.size.width).key("height").value(r.size.height);
+  j.key("min_disparity").value(o.min_disparity).key("max_disparity").value(o.max_disparity);
+  j.key("opencv_num_disparities").value(r.num_disp);
+  j.key("jump_px").value(o.jump_px).key("window_frames").value(r.window);
+  j.key("skip_timing_frames").value(o.skip_timing);
+  j.key("picture_frame").value(r.picture);
+  j.key("machine").beginObject();
+  j.key("cpu").value(cpuModel());
+  j.key("logical_cpus").value(static_cast<int>(::sysconf(_SC_NPROCESSORS_ONLN)));
+  j.key("opencv").value(CV_VERSION).key("opencv_threads").value(cv::getNumThreads());
+  j.key("load_average_start").value(r.load_start).key("load_average_end").value(loadAverage());
+  j.endObject();
+  j.key("opencv_settings").beginObject();
+  j.key("bm").value("StereoBM blockSize 15, uniquenessRatio 15, other settings OpenCV defaults");
+  j.key("sgbm").value(
+      "StereoSGBM MODE_SGBM blockSize 5, P1 200, P2 800, uniquenessRatio 10, other settings "
+      "OpenCV defaults");
+  j.endObject();
+  j.key("methods").beginArray();
+  for (const auto& s : streams) {
+    const endo_stereo::SequenceSummary sum = s->metrics.summary();
+    j.beginObject();
+    j.key("key").value(s->key).key("name").value(s->name);
+    j.key("density_median").value(sum.density_median);
+    j.key("density_mean").value(sum.density_mean);
+    j.key("jump_share").value(sum.jump_share);
+    j.key("jump_pixels").value(sum.jump_pixels).key("compared_pixels").value(sum.compared_pixels);
+    j.key("coverage_every_window").value(sum.coverage_every_window);
+    j.key("coverage_never").value(sum.coverage_never);
+    if (s->timed) {
+      const double ms = timingMedian(s->ms, o.skip_timing);
+      j.key("ms_median").value(ms);
+      j.key("cpu_ms_median").value(timingMedian(s->cpu_ms, o.skip_timing));
+      if (std::isfinite(r.sgbm_ms)) j.key("time_over_sgbm").value(ms / r.sgbm_ms);
+      j.key("ms").beginArray();
+      for (double v : s->ms) j.value(v);
+      j.endArray();
+    }
+    j.key("density").beginArray();
+    for (double v : s->metrics.densities()) j.value(v);
+    j.endArray();
+    j.key("jumps").beginArray();
+    for (int64_t v : s->metrics.jumpCounts()) j.value(v);
+    j.endArray();
+    j.key("compared").beginArray();
+    for (int64_t v : s->metrics.comparedCounts()) j.value(v);
+    j.endArray();
+    j.endObject();
+  }
+  j.endArray();
+  if (params) {
+    j.key("params").beginObject();
+    for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(*params)) {
+      j.key(info.key).value(info.value);
+    }
+    j.endObject();
+  }
+  j.endObject();
+  return j.str();
+}
+
+/// Writes left.png, disparity_*.png, jumps_*.png, coverage_*.png and comparison.png to o.out_dir.
+bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>& streams,
+                   const cv::Mat& picture_left, int picture, int n, int window, cv::Size frame_size,
+                   std::string* error) {
+  const std::string d = o.out_dir + "/";
+  const double lo = o.min_disparity, hi = o.max_disparity;
+  if (!writeImage(d + "left.png", picture_left, error)) {
+    return false;
+  }
+  const int cw = std::min(frame_size.width, 480);
+  std::vector<cv::Mat> row_disp, row_jump, row_cov;
+  row_disp.push_back(cell(picture_left, cw, cv::format("left, frame %d of %d", picture + 1, n)));
+  cv::Mat gray_bg;
+  cv::cvtColor(picture_left, gray_bg, cv::COLOR_BGR2GRAY);
+  for (const auto& s : streams) {
+    if (s->picture_disparity.empty()) continue;
+    std::string file = s->key;
+    const cv::Mat disp = endo_stereo::colorizeDisparity(s->picture_disparity, lo, hi);
+    const cv::Mat jumps = endo_stereo::jumpMapImage(s->picture_jumps, gray_bg);
+    const endo_stereo::SequenceSummary sum = s->metrics.summary();
+    const cv::Mat cov =
+        endo_stereo::coverageMapImage(s->metrics.longestGap(), sum.frames, o.window);
+    if (!writeImage(d + "disparity_" + file + ".png", disp, error) ||
+        !writeImage(d + "jumps_" + file + ".png", jumps, error) ||
+        !writeImage(d + "coverage_" + file + ".png", cov, error)) {
+      return false;
+    }
+    const double dens = s->metrics.densities()[picture];
+    row_disp.push_back(cell(disp, cw, cv::format("%s: %.0f%% dense", s->name.c_str(), 100 * dens)));
+    row_jump.push_back(cell(jumps, cw, cv::format("jumps > %g px vs previous frame", o.jump_px)));
+    row_cov.push_back(
+        cell(cov, cw,
+             cv::format("coverage: %.0f%% every %d, %.0f%% never", 100 * sum.coverage_every_window,
+                        sum.window_frames, 100 * sum.coverage_never)));
+  }
+  // The first column's lower cells: the colour scale and the legends.
+  cv::Mat scale_cell = blankLike(row_disp[0]);
+  {
+    cv::Mat ramp(1, cw - 20, CV_32FC1);
+    for (int x = 0; x < ramp.cols; ++x) ramp.at<float>(0, x) = lo + (hi - lo) * x / (ramp.cols - 1);
+    cv::Mat bar = endo_stereo::colorizeDisparity(ramp, lo, hi);
+    cv::resize(bar, bar, cv::Size(ramp.cols, 20), 0, 0, cv::INTER_NEAREST);
+    bar.copyTo(scale_cell(cv::Rect(10, 30, bar.cols, bar.rows)));
+    putLines(scale_cell,
+             {cv::format("disparity %d px", o.min_disparity) +
+                  std::string(std::max(1, (cw - 20) / 8 - 16), ' ') +
+                  cv::format("%d px", o.max_disparity),
+              "black: no value", "jump maps: red = jumped, green = stable,",
+              "  dark = no value in this or the previous frame",
+              cv::format("coverage: green = a value in every %d frames,", window),
+              "  yellow..red = longer gaps, dark red = never;",
+              "  white box = central region (half each way)"},
+             70);
+  }
+  std::vector<cv::Mat> rows;
+  auto hrow = [&](std::vector<cv::Mat> cells) {
+    cv::Mat r;
+    cv::hconcat(cells, r);
+    rows.push_back(r);
+  };
+  hrow(row_disp);
+  if (!row_jump.empty()) {
+    row_jump.insert(row_jump.begin(), scale_cell);
+    hrow(row_jump);
+    row_cov.insert(row_cov.begin(), blankLike(row_disp[0]));
+    hrow(row_cov);
+  }
+  cv::Mat figure;
+  cv::vconcat(rows, figure);
+  if (!writeImage(d + "comparison.png", figure, error)) {
+    return false;
+  }
+  return true;
+}
+
+int run(int argc, char** argv) {
+  Options o;
+  try {
+    o = parseArgs(argc, argv);
+  } catch (const UsageError& e) {
+    std::cerr << "endo_stereo_evaluate: " << e.message << "\n";
+    return kExitUsage;
+  }
+  if (!o.left.empty()) {
+    const bool seq = isPattern(o.left) || isPattern(o.right);
+    if (seq && (!validPattern(o.left) || !validPattern(o.right))) {
+      std::cerr << "endo_stereo_evaluate: a sequence needs --left and --right patterns with one "
+                   "integer conversion each, e.g. left/%04d.png\n";
+      return kExitUsage;
+    }
+    if (seq && (o.repeat > 0 || o.pan > 0)) {
+      std::cerr << "endo_stereo_evaluate: --repeat and --pan take a single pair, not a pattern\n";
+      return kExitUsage;
+    }
+    if (!seq && (o.has_first || o.count > 0)) {
+      std::cerr << "endo_stereo_evaluate: --first/--count need --left/--right patterns\n";
+      return kExitUsage;
+    }
+  }
+
+  // Our pipeline's parameters: as endo_stereo_cli (built-in defaults, input already rectified).
+  endo_stereo::PipelineParams params;
+  params.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
+  std::string err;
+  if (!o.params_file.empty()) {
+    err = endo_stereo::loadPipelineParams(o.params_file, params);
+    if (!err.empty()) {
+      std::cerr << "endo_stereo_evaluate: --params: " << err << "\n";
+      return kExitUsage;
+    }
+  }
+  for (const std::string& s : o.overrides) {
+    err = endo_stereo::applyParamOverride(params, s);
+    if (!err.empty()) {
+      std::cerr << "endo_stereo_evaluate: --set: " << err << "\n";
+      return kExitUsage;
+    }
+  }
+  params.matcher.min_disparity = o.min_disparity;
+  params.matcher.max_disparity = o.max_disparity;
+  if (o.has_threads) params.matcher.num_threads = o.threads;
+  params.output.point_cloud = false;
+  params.output.fused = true;
+  params.output.coverage = false;  // coverage is measured here, the same way for every method
+  if (!o.calib.empty()) params.rectify.mode = endo_stereo::RectifyMode::kCalibrated;
+  err = params.validate();
+  if (!err.empty()) {
+    std::cerr << "endo_stereo_evaluate: bad parameters: " << err << "\n";
+    return kExitUsage;
+  }
+  if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
+
+  endo_stereo::tools::FrameSourceSettings fs;
+  fs.left = o.left;
+  fs.right = o.right;
+  fs.has_first = o.has_first;
+  fs.first = o.first;
+  fs.count = o.count;
+  fs.fps = o.fps;
+  fs.crop = o.crop;
+  fs.repeat = o.repeat;
+  fs.pan = o.pan;
+  fs.pan_radius = o.pan_radius;
+  fs.pan_period = o.pan_period;
+  fs.bag_path = o.bag;
+  fs.ns = o.ns;
+  std::unique_ptr<FrameSource> source;
+  try {
+    source = endo_stereo::tools::makeFrameSource(fs);
+  } catch (const std::exception& ex) {
+    std::cerr << "endo_stereo_evaluate: cannot read the bag: " << ex.what() << "\n";
+    return kExitInput;
+  }
+  if (source->size() == 0) {
+    std::cerr << "endo_stereo_evaluate: no frame found (" << source->describe() << ")\n";
+    return kExitInput;
+  }
+  endo_stereo::StereoCalibration calibration;
+  bool calibrated = false;
+  if (!o.calib.empty()) {
+    if (!endo_stereo::loadStereoCalibration(o.calib, calibration, &err)) {
+      std::cerr << "endo_stereo_evaluate: --calib: " << err << "\n";
+      return kExitInput;
+    }
+    calibrated = true;
+  } else if (source->calibration(&calibration)) {
+    params.rectify.mode = endo_stereo::RectifyMode::kCalibrated;
+    calibrated = true;
+  }
+
+  auto has = [&](const std::string& m) {
+    return std::find(o.methods.begin(), o.methods.end(), m) != o.methods.end();
+  };
+  const bool any_ours = has("ours") || has("ours-no-priors");
+  if (calibrated && !any_ours) {
+    std::cerr << "endo_stereo_evaluate: rectification runs in our pipeline: with a calibration, "
+                 "--methods needs ours or ours-no-priors\n";
+    return kExitUsage;
+  }
+
+  // The methods, in the order of the table.
+  endo_stereo::SequenceMetricsParams mp;
+  mp.jump_px = o.jump_px;
+  mp.window_frames = o.window;
+  std::vector<std::unique_ptr<Stream>> streams;
+  auto addStream = [&](const std::string& key, const std::string& name, bool timed) {
+    streams.push_back(std::make_unique<Stream>(mp));
+    streams.back()->key = key;
+    streams.back()->name = name;
+    streams.back()->timed = timed;
+    return streams.back().get();
+  };
+  struct Ours {
+    std::unique_ptr<endo_stereo::Pipeline> pipeline;
+    endo_stereo::PipelineOutput out;
+    Stream* measured = nullptr;
+    Stream* fused = nullptr;
+  };
+  std::vector<Ours> ours;
+  for (const std::string key : {"ours", "ours-no-priors"}) {
+    if (!has(key)) continue;
+    endo_stereo::PipelineParams p = params;
+    const bool priors = key == std::string("ours");
+    p.temporal.enabled = priors && params.temporal.enabled;
+    Ours x;
+    try {
+      x.pipeline = std::make_unique<endo_stereo::Pipeline>(p);
+    } catch (const std::exception& ex) {
+      std::cerr << "endo_stereo_evaluate: bad parameters: " << ex.what() << "\n";
+      return kExitUsage;
+    }
+    if (calibrated) {
+      err = x.pipeline->setCalibration(calibration);
+      if (!err.empty()) {
+        std::cerr << "endo_stereo_evaluate: calibration: " << err << "\n";
+        return kExitInput;
+      }
+    }
+    const std::string base = priors ? "ours, priors" : "ours, no priors";
+    x.measured = addStream(key, base, true);
+    x.fused = addStream(key + "-fused", base + ", fused output", false);
+    ours.push_back(std::move(x));
+  }
+  const int num_disp = endo_stereo::referenceNumDisparities(o.min_disparity, o.max_disparity);
+  cv::Ptr<cv::StereoBM> bm;
+  cv::Ptr<cv::StereoSGBM> sgbm;
+  Stream* bm_stream = nullptr;
+  Stream* sgbm_stream = nullptr;
+  if (has("bm")) {
+    bm = endo_stereo::makeReferenceBm(o.min_disparity, num_disp);
+    bm_stream = addStream("bm", "OpenCV BM", true);
+  }
+  if (has("sgbm")) {
+    sgbm = endo_stereo::makeReferenceSgbm(o.min_disparity, num_disp);
+    sgbm_stream = addStream("sgbm", "OpenCV SGBM", true);
+  }
+
+  const int total = source->size();
+  const int picture = o.picture_frame >= 0 ? std::min(o.picture_frame, std::max(0, total - 1))
+                                           : std::max(0, total - 1) / 2;
+  cv::Mat picture_left;
+  cv::Size frame_size;
+  int n = 0, failed = 0;
+  Frame frame;
+  const std::string load_start = loadAverage();
+  while (true) {
+    if (!source->next(frame, &err)) {
+      if (!err.empty()) {
+        std::cerr << "endo_stereo_evaluate: " << err << "\n";
+        return kExitInput;
+      }
+      break;
+    }
+    cv::Mat left_gray, right_gray;
+    bool ok = true;
+    for (Ours& x : ours) {
+      const double cpu = processCpuMs();
+      const auto t0 = Clock::now();
+      const bool processed = x.pipeline->process(frame.input, x.out, &err);
+      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+      if (!processed) {
+        std::cerr << "endo_stereo_evaluate: frame " << frame.name << ": " << err << "\n";
+        ok = false;
+        break;
+      }
+      x.measured->ms.push_back(ms);
+      x.measured->cpu_ms.push_back(processCpuMs() - cpu);
+      x.measured->metrics.addFrame(x.out.match.disparity);
+      x.fused->metrics.addFrame(x.out.fused_disparity);
+      if (left_gray.empty()) {
+        left_gray = x.out.left_rect_gray;
+        right_gray = x.out.right_rect_gray;
+      }
+      if (n == picture) {
+        x.measured->picture_disparity = x.out.match.disparity.clone();
+        x.measured->picture_jumps = x.measured->metrics.lastJumpMap().clone();
+        x.fused->picture_disparity = x.out.fused_disparity.clone();
+        x.fused->picture_jumps = x.fused->metrics.lastJumpMap().clone();
+      }
+    }
+    if (!ok) {
+      ++failed;
+      continue;
+    }
+    if (left_gray.empty()) {  // no pipeline ran: the input is rectified, convert as it would
+      auto gray = [](const cv::Mat& m, const std::string& enc) {
+        cv::Mat g;
+        if (enc == "mono8") return m;
+        if (enc == "mono16") {
+          m.convertTo(g, CV_8U, 1.0 / 257.0);
+        } else if (enc == "bgra8") {
+          cv::cvtColor(m, g, cv::COLOR_BGRA2GRAY);
+        } else {
+          cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
+        }
+        return g;
+      };
+      left_gray = gray(frame.input.left, frame.input.left_encoding);
+      right_gray = gray(frame.input.right, frame.input.right_encoding);
+    }
+    frame_size = left_gray.size();
+    for (auto& [matcher, stream] :
+         {std::make_pair(cv::Ptr<cv::StereoMatcher>(bm), bm_stream),
+          std::make_pair(cv::Ptr<cv::StereoMatcher>(sgbm), sgbm_stream)}) {
+      if (!matcher) continue;
+      cv::Mat fixed;
+      const double cpu = processCpuMs();
+      const auto t0 = Clock::now();
+      matcher->compute(left_gray, right_gray, fixed);
+      const cv::Mat d = endo_stereo::referenceDisparityToFloat(fixed, o.min_disparity);
+      stream->ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+      stream->cpu_ms.push_back(processCpuMs() - cpu);
+      stream->metrics.addFrame(d);
+      if (n == picture) {
+        stream->picture_disparity = d;
+        stream->picture_jumps = stream->metrics.lastJumpMap().clone();
+      }
+    }
+    if (n == picture) {
+      picture_left = (ours.empty() || ours[0].out.left_rect_color.empty())
+                         ? toBgr(left_gray)
+                         : ours[0].out.left_rect_color.clone();
+    }
+    if (!o.quiet) {
+      std::fprintf(stderr, "frame %d/%d (%s):", n + 1, total, frame.name.c_str());
+      for (const auto& s : streams) {
+        if (s->timed) {
+          std::fprintf(stderr, " %s %.1f%% %.0f ms;", s->key.c_str(),
+                       100.0 * s->metrics.densities().back(), s->ms.back());
+        }
+      }
+      std::fprintf(stderr, "\n");
+    }
+    ++n;
+  }
+  if (n == 0) {
+    std::cerr << "endo_stereo_evaluate: no frame could be processed\n";
+    return kExitInput;
+  }
+
+  // --- summary ---------------------------------------------------------------------------------
+  const double sgbm_ms = sgbm_stream ? timingMedian(sgbm_stream->ms, o.skip_timing) : std::nan("");
+  const std::string label = o.label.empty() ? source->describe() : o.label;
+  const int window = std::min(o.window, n);
+  std::printf("%s: %d frames %dx%d, disparities %d..%d (OpenCV: %d..%d)\n\n", label.c_str(), n,
+              frame_size.width, frame_size.height, o.min_disparity, o.max_disparity,
+              o.min_disparity, o.min_disparity + num_disp - 1);
+  std::printf(
+      "| method | density median %% | density mean %% | jumps > %g px %% | central covered every "
+      "%d "
+      "frames %% | central never %% | ms/frame median | time / SGBM | CPU ms median |\n"
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+      o.jump_px, window);
+  for (const auto& s : streams) {
+    const endo_stereo::SequenceSummary sum = s->metrics.summary();
+    char timing[128] = "| - | - | - |";
+    if (s->timed) {
+      const double ms = timingMedian(s->ms, o.skip_timing);
+      std::snprintf(timing, sizeof(timing), "| %.1f | %s | %.1f |", ms,
+                    std::isfinite(sgbm_ms) ? cv::format("%.2f", ms / sgbm_ms).c_str() : "-",
+                    timingMedian(s->cpu_ms, o.skip_timing));
+    }
+    std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.1f %s\n", s->name.c_str(),
+                100 * sum.density_median, 100 * sum.density_mean, 100 * sum.jump_share,
+                100 * sum.coverage_every_window, 100 * sum.coverage_never, timing);
+  }
+  std::printf(
+      "\nTimes: wall time per frame, median over frames %d..%d; ours is the whole "
+      "Pipeline::process "
+      "call (threads: %d), OpenCV's the compute() call on the same rectified gray pair.%s\n",
+      std::min(o.skip_timing, n - 1) + 1, n, cv::getNumThreads(),
+      failed ? cv::format(" %d frame(s) failed.", failed).c_str() : "");
+  std::fflush(stdout);
+
+  // --- JSON ------------------------------------------------------------------------------------
+  std::string json_path = o.json;
+  if (json_path.empty() && !o.out_dir.empty()) json_path = o.out_dir + "/evaluation.json";
+  if (!o.out_dir.empty()) ::mkdir(o.out_dir.c_str(), 0755);
+  if (!json_path.empty()) {
+    RunInfo info;
+    info.label = label;
+    info.input = source->describe();
+    info.frames = n;
+    info.failed = failed;
+    info.size = frame_size;
+    info.num_disp = num_disp;
+    info.window = window;
+    info.picture = picture;
+    info.load_start = load_start;
+    info.sgbm_ms = sgbm_ms;
+    const std::string text = evaluationJson(o, info, streams, any_ours ? &params : nullptr);
+    std::ofstream f(json_path);
+    f << text;
+    if (!f) {
+      std::cerr << "endo_stereo_evaluate: cannot write '" << json_path << "'\n";
+      return kExitInput;
+    }
+  }
+
+  if (!o.out_dir.empty() && !picture_left.empty() &&
+      !writePictures(o, streams, picture_left, picture, n, window, frame_size, &err)) {
+    std::cerr << "endo_stereo_evaluate: " << err << "\n";
+    return kExitInput;
+  }
+  return failed ? kExitInput : kExitOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return run(argc, argv);
+  } catch (const std::exception& ex) {
+    std::cerr << "endo_stereo_evaluate: unexpected error: " << ex.what() << "\n";
+    return kExitInput;
+  }
+}
