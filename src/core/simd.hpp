@@ -1,8 +1,9 @@
 // Private to the core: 8-lane float helpers on GCC vector types and the dispatch attribute of the
-// hot kernels (AVX2 and baseline clones chosen at load time), shared by matcher.cpp and
-// edge_test.cpp. Not installed, not part of the API.
+// hot kernels (AVX-512, AVX2 and baseline clones chosen at load time), shared by the matcher's
+// files and the depth-edge filter. Not installed, not part of the API.
 #pragma once
 
+#include <cstdint>
 #include <cstring>
 
 namespace endo_stereo {
@@ -27,6 +28,10 @@ namespace simd {
 #pragma GCC diagnostic ignored "-Wpsabi"
 typedef float V8f __attribute__((vector_size(32)));
 typedef int V8i __attribute__((vector_size(32)));
+typedef uint32_t V8u __attribute__((vector_size(32)));
+// Eight bytes (per-pixel codes and flags) and their masks, selected as bytes.
+typedef uint8_t V8u8 __attribute__((vector_size(8)));
+typedef int8_t V8s8 __attribute__((vector_size(8)));
 
 ES_INLINE V8f load8(const float* p) {
   V8f v;

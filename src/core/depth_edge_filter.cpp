@@ -4,7 +4,7 @@
 // keeps the flagged pixels that every small window around them confirms (a fattened pixel loses
 // in the windows lying wholly on its true surface, a true foreground pixel next to the edge
 // does not).
-#include "edge_test.hpp"
+#include "depth_edge_filter.hpp"
 
 #include <algorithm>
 #include <cmath>
@@ -46,7 +46,7 @@ ES_INLINE bool anySet(const V8i& m) {
 // whose own window just misses the surface behind. With edge_window_max_px, pixels accepted with
 // a wider window are also rejected when the w_min test fires. Min and max over each window size are
 // grey-level erosions/dilations of the map (invalid pixels neutral): O(pixels) per window size.
-// Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified (verifyFlagged).
+// Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified (everyWindowPrefersOwnDisparity).
 // ---------------------------------------------------------------------------------------------
 /// Least of lo_src and greatest of hi_src over columns [x0, x1] and rows [y0, y1]. Neither
 /// holds NaN, so min and max are exact in any order and may see a value twice: eight lanes (a
@@ -145,7 +145,7 @@ inline void forEachSet(const uint8_t* mask, int n, Fn&& fn) {
   }
 }
 
-/// One pixel flagged by the map test, waiting for its second chance (see verifyFlagged).
+/// One pixel flagged by the map test, waiting for its second chance (see everyWindowPrefersOwnDisparity).
 struct Flagged {
   int x, y;
   int half;  ///< half width of the neighbourhood its test looked at, px
@@ -567,7 +567,7 @@ ES_KERNEL void slotRow(const float* v, int n, float v_lo, float v_hi, int slot_o
   for (; i < n; ++i) out[i] = slotOf(v[i], v_lo, v_hi, slot_off);
 }
 
-/// Constants of one flagged pixel's competitor scan (see verifyFlagged).
+/// Constants of one flagged pixel's competitor scan (see everyWindowPrefersOwnDisparity).
 struct ScanArgs {
   float d, below, above;  ///< the pixel's disparity and the map test's thresholds
 };
@@ -618,7 +618,7 @@ ES_KERNEL void scanBlock(const ScanArgs& a, const float* base, const int32_t* sl
   }
 }
 
-/// Reusable per-thread buffers of verifyFlagged.
+/// Reusable per-thread buffers of everyWindowPrefersOwnDisparity.
 struct VerifyScratch {
   std::vector<uint8_t> seen;  // per disparity of the search range: already listed
   std::vector<int> alts;      // competing disparities of one pixel
@@ -633,7 +633,7 @@ struct VerifyScratch {
 /// own). The pixel is kept when every window of width 2 r + 1 containing it gives its own
 /// disparity (the better of the two integers around the sub-pixel value) a ZNCC >= min_ncc and a
 /// higher ZNCC than every competitor. Reads only the images and the map before the step.
-bool verifyFlagged(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& disparity,
+bool everyWindowPrefersOwnDisparity(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& disparity,
                    const cv::Mat& padded, const cv::Mat& padded_slot, int pad, const Flagged& f,
                    float below, float above, VerifyScratch& sc) {
   const int r = mp.edge_verify_radius_px;
@@ -840,7 +840,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     }
   }
   auto straddles = [&](float d, float a, float b) { return d - a > below || b - d > above; };
-  // Pixels flagged by their own window's test get a second chance (verifyFlagged) when
+  // Pixels flagged by their own window's test get a second chance (everyWindowPrefersOwnDisparity) when
   // edge_verify_radius_px > 0; they are listed here and judged after the map test.
   const bool verify = mp.edge_verify_radius_px > 0 && left.type() == CV_8UC1 &&
                       right.type() == CV_8UC1 && left.size() == out.disparity.size() &&
@@ -848,7 +848,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   std::vector<Flagged> flagged;
   // @p lo and @p hi (kept by the caller from frame to frame) hold the erosion and dilation of
   // the map and, after the map test, the map framed in NaN and its slots for the competitor
-  // scans (verifyFlagged), at a size that does not change between calls: no fresh pages each
+  // scans (everyWindowPrefersOwnDisparity), at a size that does not change between calls: no fresh pages each
   // frame. The frame is as wide as the widest neighbourhood of any level.
   int pad = 0;
   for (int level = 0; level < num_levels; ++level) pad = std::max(pad, levelSide(level) / 2);
@@ -1046,7 +1046,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
       for (int c = rg.start; c < rg.end; ++c) {
         const size_t e = std::min(flagged.size(), static_cast<size_t>(c + 1) * kChunk);
         for (size_t i = static_cast<size_t>(c) * kChunk; i < e; ++i) {
-          keep[i] = verifyFlagged(mp, left, out.disparity, padded, padded_slot, pad, flagged[i],
+          keep[i] = everyWindowPrefersOwnDisparity(mp, left, out.disparity, padded, padded_slot, pad, flagged[i],
                                   below, above, *sc);
         }
       }
