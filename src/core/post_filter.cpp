@@ -1,4 +1,4 @@
-// Post-processing of the robust matcher (METHOD.md section 3): isolated-outlier removal and the
+// Post-processing of the robust matcher (docs/method.md section 3): isolated-outlier removal and the
 // filling of holes one or two pixels wide. Both functions decide every pixel from the input map
 // alone (never from pixels changed in the same pass), so the result does not depend on the order
 // in which pixels are visited.
@@ -10,6 +10,8 @@
 #include <sstream>
 #include <stdexcept>
 #include <vector>
+
+#include "endo_stereo/core/post_filter.hpp"
 
 #include "endo_stereo/core/matcher.hpp"
 #include "simd.hpp"
@@ -150,7 +152,7 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   const int half = params.outlier_window_px / 2;
   const float tol = static_cast<float>(params.outlier_disparity_tol_px);
   // N / window^2 < mu, with N counting the agreeing neighbours (the pixel itself excluded) and the
-  // denominator fixed at window^2 also at the image border, as METHOD.md writes it. N is an
+  // denominator fixed at window^2 also at the image border, as docs/method.md writes it. N is an
   // integer, so "N < need" is "N < ceil(need)".
   const double need =
       params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;

@@ -1,4 +1,4 @@
-// Bad-input regression tests at the core level (issue 6, RELIABILITY.md): every entry of the
+// Bad-input regression tests at the core level (RELIABILITY.md): every entry of the
 // bad-input inventory that exists without ROS is fed to endo_stereo::Pipeline (or the loader /
 // buffer wrapper it reaches), and each must give a clear error naming the problem, or a defined
 // behaviour, and leave the pipeline able to process the next good pair. The crashes found by the

@@ -185,7 +185,7 @@ TEST(ParamsIo, MissingFileIsAnError) {
 }
 
 // The shipped presets load with this loader and pass validation; the paper preset holds the
-// paper's values (METHOD.md, "Parameters").
+// paper's values (docs/method.md, "Parameters").
 TEST(ParamsIo, ShippedPresetsLoadAndPaperPresetHoldsThePapersValues) {
   const std::string dir = std::string(ES_SOURCE_DIR) + "/config/";
   for (const char* name : {"default.yaml", "paper.yaml"}) {

@@ -1,5 +1,5 @@
 // The Pipeline's plumbing: stages in order, errors reported without throwing, temporal state
-// reset on the events METHOD.md section 4 names, optional outputs, geometry from calibration.
+// reset on the events docs/method.md section 4 names, optional outputs, geometry from calibration.
 #include <gtest/gtest.h>
 
 #include <cmath>

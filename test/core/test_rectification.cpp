@@ -216,7 +216,7 @@ TEST_P(CalibratedRigTest, AlignsRowsAndRecoversDepth) {
   ASSERT_GE(n_measured, 30);
   // Exact mapping: numerical noise only.
   EXPECT_LT(max_dy_exact, 1e-3);
-  // Issue 3: rows align within 0.1 px and depth within 0.5%, measured on dot centroids in the
+  // Requirement: rows align within 0.1 px and depth within 0.5%, measured on dot centroids in the
   // remapped images (centroid bias of a 1.5 px Gaussian after bilinear remap is a few 0.01 px).
   EXPECT_LT(max_dy, 0.1);
   EXPECT_LT(max_dz, 0.005);
@@ -493,7 +493,7 @@ TEST_F(RectifyTest, HamlynPhantomRectifiesToExpectedDisparities) {
       "(density %.1f%%)\n",
       q.median_offset_px, q.p90_offset_px, q.num_matches, values[values.size() / 2], 100 * share,
       valid, 100.0 * valid / in_mask);
-  // Issue 3: vertical offset under 1 px and disparities in the mask in 30-45 px. "Lie in" is
+  // Requirement: vertical offset under 1 px and disparities in the mask in 30-45 px. "Lie in" is
   // checked as 95% of the accepted pixels (the matcher keeps a few wrong matches on specular
   // highlights) with the median inside the range.
   EXPECT_LT(q.median_offset_px, 1.0);

@@ -1,6 +1,6 @@
 /**
  * @file surgical_scene.hpp
- * @brief Synthetic surgical stereo video with exact ground truth (issue 4, item 1).
+ * @brief Synthetic surgical stereo video with exact ground truth (the temporal benchmark's and the generator's input).
  *
  * A calibrated stereo endoscope looks at a smooth, deforming tissue surface (breathing, heartbeat,
  * a slow peristaltic wave) with a procedural tissue texture (vessels, mottling, colour variation,

@@ -1,6 +1,6 @@
 /**
  * @file rectification.hpp
- * @brief Stereo rectification in three modes (METHOD.md section 1) and its quality figure.
+ * @brief Stereo rectification in three modes (docs/method.md section 1) and its quality figure.
  *
  * 1. Calibrated: undistort-rectify maps from two CameraInfo-model calibrations (K, D, R, P with
  *    binning and ROI), built once and cached until the calibration or the image size changes.

@@ -1,6 +1,6 @@
 /**
  * @file temporal.hpp
- * @brief Temporal smoothness over video (METHOD.md section 4): search-range priors from the
+ * @brief Temporal smoothness over video (docs/method.md section 4): search-range priors from the
  * previous frames, temporal fusion of recent valid disparities, and coverage over time (the
  * paper's Fig. 6: per pixel the longest run of frames without an update).
  *
@@ -55,7 +55,7 @@ struct TemporalParams {
   /// Use temporal search-range priors. Fusion and coverage are requested separately (they run
   /// whether or not priors are used, so "--no-priors" runs can be compared on coverage too).
   bool enabled = true;
-  /// Half-width of the narrowed search around a prior, px (issue 2: +-4). In [1, 64].
+  /// Half-width of the narrowed search around a prior, px (+-4 by default). In [1, 64].
   int prior_radius_px = 4;
   /// The narrowed range of a pixel spans the priors found within this many pixels of it
   /// (a (2k+1)^2 neighbourhood), so small image motion and newly uncovered neighbours of valid
@@ -96,7 +96,7 @@ struct TemporalParams {
   /// turn; elsewhere such pixels are not searched (matcher code "unsearched"), keep whatever prior
   /// they had (it ages) and count no failure. With the highlight rule on, pixels near a highlight
   /// that have a prior are never deferred (they search the full range every frame). 1 = every frame
-  /// (METHOD.md section 4 to the letter). Most pixels without a prior fail again (the textureless
+  /// (docs/method.md section 4 to the letter). Most pixels without a prior fail again (the textureless
   /// instrument, the band at the left border, wet highlights), and a failure at the full range
   /// runs every window size: on the surgical sequence 4 cuts 22% of the matcher's instructions per
   /// frame with priors, for -0.26 points of density and 97.9% instead of 98.2% of central pixels
@@ -178,7 +178,7 @@ struct TemporalPriorStats {
 };
 
 /**
- * Search-range priors from the previous frames' valid disparities (METHOD.md section 4).
+ * Search-range priors from the previous frames' valid disparities (docs/method.md section 4).
  *
  * Per pixel it keeps the most recent valid disparity, its age in frames and a count of
  * consecutive failed narrowed searches. buildRange() gives pixel p the range
