@@ -14,7 +14,6 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "simd.hpp"
 #include "uncalibrated_rectification.hpp"
 
 #ifdef __linux__

@@ -15,7 +15,16 @@ namespace simd {
 // search -4.5%, +-4 px range -7% on the benchmark's 960x540 case, 2026-11-23). The core builds
 // with -ffp-contract=off (CMakeLists.txt): v4 has FMA, and a fused multiply-add rounds once
 // where the other clones round twice, so without it the clones' outputs would differ. --------
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+// ES_KERNEL_CLONE (1 baseline, 2 avx2, 3 x86-64-v4) builds one clone alone, as the target
+// attribute of that clone: test_simd_clones builds the matcher once per clone this way and
+// checks that all of them, and the dispatched library, give the same output.
+#if defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 1
+#define ES_KERNEL
+#elif defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 2
+#define ES_KERNEL __attribute__((target("avx2")))
+#elif defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 3
+#define ES_KERNEL __attribute__((target("arch=x86-64-v4")))
+#elif defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
     !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
 #define ES_KERNEL __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
