@@ -17,7 +17,7 @@
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/image_io.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 #include "synthetic_scene.hpp"
 
 namespace {

@@ -228,7 +228,7 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
     const char* section;
   };
   const Source sources[] = {{"matcher.hpp", "MatcherParams", "matcher"},
-                            {"matcher.hpp", "PostFilterParams", "filter"},
+                            {"post_filter.hpp", "PostFilterParams", "filter"},
                             {"preprocess.hpp", "PreprocessParams", "preprocess"},
                             {"rectification.hpp", "RectifyParams", "rectify"},
                             {"temporal.hpp", "TemporalParams", "temporal"},

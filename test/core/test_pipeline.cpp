@@ -10,7 +10,7 @@
 #include <string>
 
 #include "endo_stereo/core/pipeline.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 #include "synthetic_scene.hpp"
 
 namespace {

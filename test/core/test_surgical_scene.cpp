@@ -1,4 +1,4 @@
-// Tests of the synthetic surgical stereo generator (test/test_utils/surgical_scene.hpp): exact
+// Tests of the synthetic surgical stereo generator (include/endo_stereo/synthetic/surgical_scene.hpp): exact
 // ground truth, determinism, calibration, masks, degradations.
 #include <cmath>
 
@@ -7,7 +7,7 @@
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 namespace endo_stereo {
 namespace {

@@ -10,7 +10,7 @@
 
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/temporal.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 namespace endo_stereo {
 namespace {

@@ -4,7 +4,7 @@
 // optical frame; the rig (both cameras) only translates over time. The tissue is a height field
 // Z = h(X, Y, t); instruments are capsules. Every pixel of each view is a ray C + s * dir, where
 // dir comes from a per-pixel table built once (so a distorted lens costs nothing per frame).
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 #include <algorithm>
 #include <array>
