@@ -1,7 +1,7 @@
 // Our measure against foreground fattening at depth edges (docs/matcher_design.md): run by
-// RobustMatcher::compute after matching, before the post-filters. Two stages: a map test (this file) flags
-// pixels whose accepting window holds a disparity jump; a second chance, looking at the images,
-// keeps the flagged pixels that every small window around them confirms
+// RobustMatcher::compute after matching, before the post-filters. Two stages: a map test (this
+// file) flags pixels whose accepting window holds a disparity jump; a second chance, looking at the
+// images, keeps the flagged pixels that every small window around them confirms
 // (depth_edge_second_chance.cpp) (a fattened pixel loses
 // in the windows lying wholly on its true surface, a true foreground pixel next to the edge
 // does not).
@@ -16,7 +16,6 @@
 #include <opencv2/imgproc.hpp>
 #include <vector>
 
-#include "simd.hpp"
 #include "depth_edge_second_chance.hpp"
 #include "simd.hpp"
 
@@ -26,7 +25,6 @@ using detail::Flagged;
 
 namespace {
 using namespace simd;
-
 
 // ---------------------------------------------------------------------------------------------
 // Our measure against fattening at depth edges (see the top of this file and
@@ -40,7 +38,8 @@ using namespace simd;
 // whose own window just misses the surface behind. With edge_window_max_px, pixels accepted with
 // a wider window are also rejected when the w_min test fires. Min and max over each window size are
 // grey-level erosions/dilations of the map (invalid pixels neutral): O(pixels) per window size.
-// Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified (everyWindowPrefersOwnDisparity).
+// Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified
+// (everyWindowPrefersOwnDisparity).
 // ---------------------------------------------------------------------------------------------
 /// Least of lo_src and greatest of hi_src over columns [x0, x1] and rows [y0, y1]. Neither
 /// holds NaN, so min and max are exact in any order and may see a value twice: eight lanes (a
@@ -222,16 +221,16 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     }
   }
   auto straddles = [&](float d, float a, float b) { return d - a > below || b - d > above; };
-  // Pixels flagged by their own window's test get a second chance (everyWindowPrefersOwnDisparity) when
-  // edge_verify_radius_px > 0; they are listed here and judged after the map test.
+  // Pixels flagged by their own window's test get a second chance (everyWindowPrefersOwnDisparity)
+  // when edge_verify_radius_px > 0; they are listed here and judged after the map test.
   const bool verify = mp.edge_verify_radius_px > 0 && left.type() == CV_8UC1 &&
                       right.type() == CV_8UC1 && left.size() == out.disparity.size() &&
                       right.size() == out.disparity.size();
   std::vector<Flagged> flagged;
   // @p lo and @p hi (kept by the caller from frame to frame) hold the erosion and dilation of
   // the map and, after the map test, the map framed in NaN and its slots for the competitor
-  // scans (everyWindowPrefersOwnDisparity), at a size that does not change between calls: no fresh pages each
-  // frame. The frame is as wide as the widest neighbourhood of any level.
+  // scans (everyWindowPrefersOwnDisparity), at a size that does not change between calls: no fresh
+  // pages each frame. The frame is as wide as the widest neighbourhood of any level.
   int pad = 0;
   for (int level = 0; level < num_levels; ++level) pad = std::max(pad, levelSide(level) / 2);
   const cv::Size padded_size(W + 2 * pad + 8, H + 2 * pad);
@@ -297,8 +296,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
                         out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
                         hits.data());
             // Hits are rare.
-            forEachSet(hits.data(), W,
-                       [&](int x) { block_hits[blk].push_back(Hit{x, y, a[x], b[x]}); });
+            forEachSet(hits.data(), W, [&](int x) {
+              block_hits[blk].push_back(Hit{x, y, a[x], b[x]});
+            });
           }
         }
       });

@@ -33,7 +33,7 @@ ES_INLINE bool anySet(const V8i& m) {
   return (w[0] | w[1]) != 0;
 }
 
-constexpr int kMaxVerifyRadius = 6;    // MatcherParams::validate()
+constexpr int kMaxVerifyRadius = 6;                 // MatcherParams::validate()
 constexpr int kMaxSide = 2 * kMaxVerifyRadius + 1;  // window width
 
 // WindowCache tiles: a block of kTile rows x kTileW columns of window corners, each tile row
@@ -41,13 +41,13 @@ constexpr int kMaxSide = 2 * kMaxVerifyRadius + 1;  // window width
 // row are contiguous in one tile (read as 16 lanes from column 0 .. kTileW - 1: kTileStride >=
 // kTileW + 15). 32 block columns rather than 16 (measured: 4% fewer instructions for the whole
 // step on the surgical sequence, 24 gave 1%, 48 no more; 8 was 20% worse).
-constexpr int kTile = 16;                          // window corner rows per tile
-constexpr int kTileW = 32;                         // block columns per tile
-constexpr int kTileCols = kTileW + kMaxSide - 1;    // window corners per tile row, at most
-constexpr int kTileStride = 48;                    // row stride of a tile's window values
-constexpr int kTileSpan = kTile + kMaxSide - 1;    // pixel rows a tile reads
+constexpr int kTile = 16;                         // window corner rows per tile
+constexpr int kTileW = 32;                        // block columns per tile
+constexpr int kTileCols = kTileW + kMaxSide - 1;  // window corners per tile row, at most
+constexpr int kTileStride = 48;                   // row stride of a tile's window values
+constexpr int kTileSpan = kTile + kMaxSide - 1;   // pixel rows a tile reads
 constexpr int kTileLanes = (kTileCols + kMaxSide - 1 + 7) / 8 * 8;  // pixel columns, whole lanes
-constexpr int kRowLanes = 16;                      // lanes per window row of one pixel
+constexpr int kRowLanes = 16;  // lanes per window row of one pixel
 static_assert(kTileStride >= kTileW - 1 + kRowLanes && kTileStride >= kTileCols, "tile layout");
 static_assert(kRowLanes >= kMaxSide, "one pixel's window row in 16 lanes");
 static_assert((kTileCols + 7) / 8 * 8 <= kTileStride, "blockSums writes whole vectors");
@@ -74,8 +74,8 @@ ES_INLINE bool beatsParts(int32_t vl, int32_t vr, int32_t cov, float own) {
 /// the division are IEEE-exact in any lane width, so the values do not depend on it).
 ES_KERNEL void windowParts(int32_t n, const int32_t* sl, const int32_t* sll, const int32_t* sr,
                            const int32_t* srr, const int32_t* slr, int count,
-                           int32_t* __restrict vl, int32_t* __restrict vr,
-                           int32_t* __restrict cov, float* __restrict ncc) {
+                           int32_t* __restrict vl, int32_t* __restrict vr, int32_t* __restrict cov,
+                           float* __restrict ncc) {
   for (int i = 0; i < count; ++i) {
     vl[i] = n * sll[i] - sl[i] * sl[i];
     vr[i] = n * srr[i] - sr[i] * sr[i];
@@ -349,8 +349,8 @@ class WindowCache {
   int hash_bits_ = 0;
   std::vector<int64_t> keys_;
   std::vector<int32_t> values_;
-  TileSums* tiles_ = nullptr;               // capacity(nd_) tiles
-  std::unique_ptr<TileSums[]> own_tiles_;  // without an arena
+  TileSums* tiles_ = nullptr;                 // capacity(nd_) tiles
+  std::unique_ptr<TileSums[]> own_tiles_;     // without an arena
   int lv_x_ = -1, lv_y_ = -1, lv_lanes_ = 0;  // the block whose left pixels lv_ holds
   alignas(32) int32_t lv_[kTileSpan][kTileLanes];
   alignas(32) int32_t rv_[kTileSpan][kTileLanes];
@@ -430,8 +430,7 @@ ES_INLINE int32_t slotOf(float v, float v_lo, float v_hi, int slot_off) {
 /// [v_lo, v_hi], rounded half away from zero (std::lround: |v| + 0.5 is exact here, then
 /// truncation) to c, and c + slot_off. NaN (never triggering, its slot is never read) gives
 /// slot_off. Eight lanes, the same operations as slotOf.
-ES_KERNEL void slotRow(const float* v, int n, float v_lo, float v_hi, int slot_off,
-                       int32_t* out) {
+ES_KERNEL void slotRow(const float* v, int n, float v_lo, float v_hi, int slot_off, int32_t* out) {
   const V8f lo = splat8(v_lo), hi = splat8(v_hi), half = splat8(0.5f), zero = splat8(0.f);
   const V8i off = {slot_off, slot_off, slot_off, slot_off, slot_off, slot_off, slot_off, slot_off};
   int i = 0;
@@ -501,8 +500,8 @@ ES_KERNEL void scanBlock(const ScanArgs& a, const float* base, const int32_t* sl
 
 /// Reusable per-thread buffers of everyWindowPrefersOwnDisparity.
 struct VerifyScratch {
-  std::vector<uint8_t> seen;  // per disparity of the search range: already listed
-  std::vector<int> alts;      // competing disparities of one pixel
+  std::vector<uint8_t> seen;               // per disparity of the search range: already listed
+  std::vector<int> alts;                   // competing disparities of one pixel
   std::vector<const TileSums*> alt_tiles;  // their two tiles each
   std::vector<uint8_t> mark;  // per rounded neighbour disparity: seen among the triggering ones
   WindowCache cache;          // window values shared between the pixels
@@ -514,9 +513,10 @@ struct VerifyScratch {
 /// own). The pixel is kept when every window of width 2 r + 1 containing it gives its own
 /// disparity (the better of the two integers around the sub-pixel value) a ZNCC >= min_ncc and a
 /// higher ZNCC than every competitor. Reads only the images and the map before the step.
-bool everyWindowPrefersOwnDisparity(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& disparity,
-                   const cv::Mat& padded, const cv::Mat& padded_slot, int pad, const Flagged& f,
-                   float below, float above, VerifyScratch& sc) {
+bool everyWindowPrefersOwnDisparity(const MatcherParams& mp, const cv::Mat& left,
+                                    const cv::Mat& disparity, const cv::Mat& padded,
+                                    const cv::Mat& padded_slot, int pad, const Flagged& f,
+                                    float below, float above, VerifyScratch& sc) {
   const int r = mp.edge_verify_radius_px;
   const int W = left.cols, H = left.rows;
   if (f.x - 2 * r < 0 || f.x + 2 * r > W - 1 || f.y - 2 * r < 0 || f.y + 2 * r > H - 1) {
@@ -594,8 +594,7 @@ bool everyWindowPrefersOwnDisparity(const MatcherParams& mp, const cv::Mat& left
     for (int slot = 8 * wi; slot < std::min(8 * wi + 8, nd + 4); ++slot) {
       if (!(word >> (8 * (slot - 8 * wi)) & 0xff)) continue;
       const int c = slot - slot_off;
-      for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity);
-           ++q) {
+      for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity); ++q) {
         if (sc.seen[q - mp.min_disparity] || std::fabs(static_cast<float>(q) - d) < 2.f) continue;
         sc.seen[q - mp.min_disparity] = 1;
         sc.alts.push_back(q);
@@ -657,22 +656,22 @@ void secondChance(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& r
   const cv::Mat& padded = lo;
   const cv::Mat& padded_slot = hi;
   CV_Assert(padded_slot.step1() == padded.step1());
-  cv::parallel_for_(cv::Range(0, (padded.rows + kRowBlock - 1) / kRowBlock),
-                    [&](const cv::Range& rg) {
-    for (int y = rg.start * kRowBlock; y < std::min(padded.rows, rg.end * kRowBlock); ++y) {
-      float* row = lo.ptr<float>(y);
-      if (y < pad || y >= pad + H) {
-        std::fill(row, row + padded.cols, nan);
-      } else {
-        std::fill(row, row + pad, nan);
-        std::memcpy(row + pad, disparity.ptr<float>(y - pad), sizeof(float) * W);
-        std::fill(row + pad + W, row + padded.cols, nan);
-      }
-      slotRow(row, padded.cols, static_cast<float>(mp.min_disparity - 2),
-              static_cast<float>(mp.max_disparity + 2), 3 - mp.min_disparity,
-              hi.ptr<int32_t>(y));
-    }
-  });
+  cv::parallel_for_(
+      cv::Range(0, (padded.rows + kRowBlock - 1) / kRowBlock), [&](const cv::Range& rg) {
+        for (int y = rg.start * kRowBlock; y < std::min(padded.rows, rg.end * kRowBlock); ++y) {
+          float* row = lo.ptr<float>(y);
+          if (y < pad || y >= pad + H) {
+            std::fill(row, row + padded.cols, nan);
+          } else {
+            std::fill(row, row + pad, nan);
+            std::memcpy(row + pad, disparity.ptr<float>(y - pad), sizeof(float) * W);
+            std::fill(row + pad + W, row + padded.cols, nan);
+          }
+          slotRow(row, padded.cols, static_cast<float>(mp.min_disparity - 2),
+                  static_cast<float>(mp.max_disparity + 2), 3 - mp.min_disparity,
+                  hi.ptr<int32_t>(y));
+        }
+      });
   // Flagged pixels in tile-major order (kTile x kTile blocks, row-major within a block), so
   // that a chunk's pixels share the WindowCache's tiles; a counting sort (stable).
   {
@@ -723,8 +722,8 @@ void secondChance(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& r
     for (int c = rg.start; c < rg.end; ++c) {
       const size_t e = std::min(flagged.size(), static_cast<size_t>(c + 1) * kChunk);
       for (size_t i = static_cast<size_t>(c) * kChunk; i < e; ++i) {
-        keep[i] = everyWindowPrefersOwnDisparity(mp, left, disparity, padded, padded_slot, pad, flagged[i],
-                                below, above, *sc);
+        keep[i] = everyWindowPrefersOwnDisparity(mp, left, disparity, padded, padded_slot, pad,
+                                                 flagged[i], below, above, *sc);
       }
     }
     std::lock_guard<std::mutex> lock(scratch_mutex);

@@ -47,8 +47,8 @@ namespace endo_stereo {
 using detail::kStripeRows;
 
 struct RobustMatcher::Impl : detail::FrameData {
-  cv::Mat state;       // CV_8U: 0 = undecided/failed so far, 1 = accepted
-  cv::Mat window_idx;  // CV_8U window index that accepted
+  cv::Mat state;        // CV_8U: 0 = undecided/failed so far, 1 = accepted
+  cv::Mat window_idx;   // CV_8U window index that accepted
   cv::Mat code_before;  // codes before hole filling (a filled pixel's confidence)
   // Reused buffers of the depth-edge filter (rejectEdgeStraddlers): the erosion / dilation
   // sources, their results, and the second chance's window cache.
@@ -92,7 +92,6 @@ void RobustMatcher::setParams(const MatcherParams& matcher_params,
   filter_params_ = filter_params;
 }
 
-
 namespace {
 
 using namespace simd;
@@ -123,7 +122,8 @@ ES_KERNEL int64_t countEqual(const uint8_t* __restrict p, int n, int v) {
 
 /// The valid pixels of a row (accepted or filled), counted; the confidence of every rejected
 /// pixel (not filled) set to 0.
-ES_KERNEL int64_t countValidZeroRejected(const uint8_t* __restrict cd, float* __restrict cf, int n) {
+ES_KERNEL int64_t countValidZeroRejected(const uint8_t* __restrict cd, float* __restrict cf,
+                                         int n) {
   int c = 0;
   for (int x = 0; x < n; ++x) {
     const bool filled = cd[x] == kCodeFilled;
@@ -291,8 +291,8 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
     const int w = mp.window_min_px + level * mp.window_step_px;
     if (w > W || w > H) break;
     levels.push_back(detail::WindowLevel{&mp, &im, uniform, level, w, w / 2, W, H, mp.min_disparity,
-                                  mp.max_disparity, &im.state, &im.window_idx, &im.open_rows,
-                                  &im.open_level, &im.n_req_rows, &out});
+                                         mp.max_disparity, &im.state, &im.window_idx, &im.open_rows,
+                                         &im.open_level, &im.n_req_rows, &out});
   }
   // A row's window sizes depend only on that row (its open pixels, its requested ranges and the
   // images), so each stripe runs through all window sizes on its own: no barrier between window

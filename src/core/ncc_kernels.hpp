@@ -37,15 +37,33 @@ ES_INLINE void byGroups(int n, Fn&& fn) {
     return;
   }
   switch (n / 8) {
-    case 1: fn(std::integral_constant<int, 1>()); break;
-    case 2: fn(std::integral_constant<int, 2>()); break;
-    case 3: fn(std::integral_constant<int, 3>()); break;
-    case 4: fn(std::integral_constant<int, 4>()); break;
-    case 5: fn(std::integral_constant<int, 5>()); break;
-    case 6: fn(std::integral_constant<int, 6>()); break;
-    case 7: fn(std::integral_constant<int, 7>()); break;
-    case 8: fn(std::integral_constant<int, 8>()); break;
-    default: fn(std::integral_constant<int, 0>()); break;
+    case 1:
+      fn(std::integral_constant<int, 1>());
+      break;
+    case 2:
+      fn(std::integral_constant<int, 2>());
+      break;
+    case 3:
+      fn(std::integral_constant<int, 3>());
+      break;
+    case 4:
+      fn(std::integral_constant<int, 4>());
+      break;
+    case 5:
+      fn(std::integral_constant<int, 5>());
+      break;
+    case 6:
+      fn(std::integral_constant<int, 6>());
+      break;
+    case 7:
+      fn(std::integral_constant<int, 7>());
+      break;
+    case 8:
+      fn(std::integral_constant<int, 8>());
+      break;
+    default:
+      fn(std::integral_constant<int, 0>());
+      break;
   }
 }
 
@@ -54,11 +72,12 @@ ES_INLINE void byGroups(int n, Fn&& fn) {
 /// h[k] += a[k] - b[k]; n whole groups (a window slid by one column).
 ES_INLINE void addSubGroups(int n, float* __restrict h, const float* __restrict a,
                             const float* __restrict b) {
-  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
-    constexpr int kG = decltype(groups)::value;
-    const int m = kG > 0 ? 8 * kG : n;
-    for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(a + k) - load8(b + k)));
-  });
+  byGroups(
+      n, [&](auto groups) __attribute__((always_inline)) {
+        constexpr int kG = decltype(groups)::value;
+        const int m = kG > 0 ? 8 * kG : n;
+        for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + (load8(a + k) - load8(b + k)));
+      });
 }
 
 /// Greatest lane, in every lane (three butterfly steps).
@@ -76,7 +95,6 @@ ES_INLINE V8i hmin8(V8i v) {
   t = __builtin_shufflevector(v, v, 1, 0, 3, 2, 5, 4, 7, 6);
   return t < v ? t : v;
 }
-
 
 /// Interior local maxima of one group v (its lanes' neighbours in left and right), folded into
 /// the per-lane trackers: the lane's best (first of equal values: strict >), its index, and the
@@ -106,8 +124,8 @@ ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restr
 /// them, and a load at prof + k - 1 straddles two of those stores, which the store buffer cannot
 /// forward (a stall per group); the values are the same.
 template <bool kMasked>
-ES_INLINE void peakGroupReg(V8f prev, V8f v, V8f next, V8i kk, V8i vklo, V8i vkhi, V8f& bv,
-                            V8f& sv, V8i& bk) {
+ES_INLINE void peakGroupReg(V8f prev, V8f v, V8f next, V8i kk, V8i vklo, V8i vkhi, V8f& bv, V8f& sv,
+                            V8i& bk) {
   foldPeaks<kMasked>(v, __builtin_shufflevector(prev, v, 7, 8, 9, 10, 11, 12, 13, 14),
                      __builtin_shufflevector(v, next, 1, 2, 3, 4, 5, 6, 7, 8), kk, vklo, vkhi, bv,
                      sv, bk);

@@ -1,7 +1,9 @@
-// Post-processing of the robust matcher (docs/method.md section 3): isolated-outlier removal and the
-// filling of holes one or two pixels wide. Both functions decide every pixel from the input map
+// Post-processing of the robust matcher (docs/method.md section 3): isolated-outlier removal and
+// the filling of holes one or two pixels wide. Both functions decide every pixel from the input map
 // alone (never from pixels changed in the same pass), so the result does not depend on the order
 // in which pixels are visited.
+#include "endo_stereo/core/post_filter.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -10,8 +12,6 @@
 #include <sstream>
 #include <stdexcept>
 #include <vector>
-
-#include "endo_stereo/core/post_filter.hpp"
 
 #include "endo_stereo/core/matcher.hpp"
 #include "simd.hpp"
@@ -307,10 +307,9 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
             }
           }
           if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
-          static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4},
-                                              {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
-                                              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4},
-                                              {3, 6}, {1, 2}, {3, 4}, {5, 6}};
+          static constexpr int kNet[19][2] = {
+              {0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
+              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
           for (const auto& c : kNet) {
             const float a = v[c[0]], b = v[c[1]];
             v[c[0]] = std::min(a, b);

@@ -495,20 +495,18 @@ struct StereoRectifier::Impl {
     if (pending_quality.valid()) return;  // the previous one still runs: skip this one
     pending_frame = frame_index;
     pending_generation = generation;
-    pending_quality =
-        std::async(std::launch::async, [l = left_rect.clone(), r = right_rect.clone(), dmin, dmax,
-                                        n = params.quality_max_features] {
-          lowerThisThreadsPriority();
-          return measureRowAlignmentPatches(l, r, dmin, dmax, n);
-        });
+    pending_quality = std::async(std::launch::async, [l = left_rect.clone(), r = right_rect.clone(),
+                                                      dmin, dmax, n = params.quality_max_features] {
+      lowerThisThreadsPriority();
+      return measureRowAlignmentPatches(l, r, dmin, dmax, n);
+    });
   }
 
   // Records a finished background measurement (wait: block until it is done; discard: drop it,
   // as after a change of calibration it describes the old one).
   void collectQuality(bool wait, bool discard = false) {
     if (!pending_quality.valid()) return;
-    if (!wait &&
-        pending_quality.wait_for(std::chrono::seconds(0)) != std::future_status::ready) {
+    if (!wait && pending_quality.wait_for(std::chrono::seconds(0)) != std::future_status::ready) {
       return;
     }
     const RectificationQuality q = pending_quality.get();

@@ -41,11 +41,10 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
 // would turn the matcher's parallel loops serial for as long as it ran.
 namespace {
 
-
-constexpr int kPatchHalf = 5;        // 11 x 11 patches
-constexpr int kPatchMaxDy = 8;       // vertical search +-8 px; larger offsets read as 8
-constexpr float kPatchMinNcc = 0.8f;  // least ZNCC of a used match
-constexpr float kPatchMinGap = 0.05f;  // over the best match 3 or more disparities away
+constexpr int kPatchHalf = 5;            // 11 x 11 patches
+constexpr int kPatchMaxDy = 8;           // vertical search +-8 px; larger offsets read as 8
+constexpr float kPatchMinNcc = 0.8f;     // least ZNCC of a used match
+constexpr float kPatchMinGap = 0.05f;    // over the best match 3 or more disparities away
 constexpr double kPatchMinGradSq = 9.0;  // least mean squared gradient, both directions
 constexpr int kPatchSide = 2 * kPatchHalf + 1;
 
@@ -89,9 +88,9 @@ ES_KERNEL void patchSums(const float* band, int stride, const float* lp, int blo
 
 }  // namespace
 
-RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
-                                                const cv::Mat& right_gray, int min_disparity,
-                                                int max_disparity, int max_patches) {
+RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
+                                                int min_disparity, int max_disparity,
+                                                int max_patches) {
   RectificationQuality q;
   if (left_gray.type() != CV_8UC1 || right_gray.type() != CV_8UC1 ||
       left_gray.size() != right_gray.size() || min_disparity > max_disparity) {
@@ -260,8 +259,8 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
   }
   if (offsets.size() < 8) {
     std::ostringstream m;
-    m << "too few reliable patch matches to measure the rectification (" << offsets.size()
-      << " of " << textured << " textured patches";
+    m << "too few reliable patch matches to measure the rectification (" << offsets.size() << " of "
+      << textured << " textured patches";
     if (textured >= 32 && int(offsets.size()) * 4 < textured) {
       // Most textured patches found nothing within +-8 px rows and the disparity range: warn,
       // as for a large offset.

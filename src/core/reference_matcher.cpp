@@ -78,7 +78,8 @@ float referenceNcc(const cv::Mat& left, const cv::Mat& right, int x, int y, int 
   int64_t h = 0;
   for (int yy = y - r; yy <= y + r; ++yy) {
     for (int xx = x - r; xx <= x + r; ++xx) {
-      h += (int64_t{left.at<uint8_t>(yy, xx)} - 128) * (int64_t{right.at<uint8_t>(yy, xx - d)} - 128);
+      h += (int64_t{left.at<uint8_t>(yy, xx)} - 128) *
+           (int64_t{right.at<uint8_t>(yy, xx - d)} - 128);
     }
   }
   // S = (sum L'R' - mean L' * sum R') / (n sd_L sd_R) with L' = L - 128, R' = R - 128, evaluated as
@@ -143,7 +144,8 @@ void referenceMatch(const cv::Mat& left, const cv::Mat& right, const MatcherPara
       for (int x = 0; x < W; ++x) {
         int a, b;
         if (accepted.at<uint8_t>(y, x) || !effectiveRange(req, W, H, x, y, r, &a, &b)) continue;
-        const bool narrowed = lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
+        const bool narrowed =
+            lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
         // Ours: a narrowed pixel is tried up to window_max_narrowed_px only (the first window
         // always); it keeps the code of its last window.
         if (narrowed && level > 0 && p.window_max_narrowed_px > 0 && w > p.window_max_narrowed_px) {

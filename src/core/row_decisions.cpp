@@ -123,8 +123,8 @@ ES_KERNEL int decideDense(const DecideArgs& a) {
 /// [rlo, rhi], cut so that both windows lie inside the images (empty - kEmptyLo > kEmptyHi, and
 /// 1e9 > -1e9 as floats - outside [r, W - r) or when nothing is left). Branch-free (vectorised).
 ES_KERNEL void denseRanges(int W, int r, const int* __restrict rlo, const int* __restrict rhi,
-                           int* __restrict eff_lo, int* __restrict eff_hi, float* __restrict eff_lo_f,
-                           float* __restrict eff_hi_f) {
+                           int* __restrict eff_lo, int* __restrict eff_hi,
+                           float* __restrict eff_lo_f, float* __restrict eff_hi_f) {
   for (int x = 0; x < W; ++x) {
     const bool inside = (x >= r) & (x < W - r);
     int lo = std::max(rlo[x], x - (W - 1 - r));
@@ -155,7 +155,7 @@ ES_KERNEL int openColumns(int x0, int x1, const int* __restrict rlo, const int* 
     V8i lo, hi;
     std::memcpy(&lo, rlo + x, sizeof(lo));
     std::memcpy(&hi, rhi + x, sizeof(hi));
-    const V8i sv = {st[x], st[x + 1], st[x + 2], st[x + 3],
+    const V8i sv = {st[x],     st[x + 1], st[x + 2], st[x + 3],
                     st[x + 4], st[x + 5], st[x + 6], st[x + 7]};
     const V8i m = (lo <= hi) & (sv == 0) & (~vcap | ((lo <= vmin) & (hi >= vmax)));
     if (!anyLane(m)) continue;
@@ -221,9 +221,9 @@ ES_KERNEL int denseActive(int W, int r, const int* __restrict rlo, const int* __
     const bool narrow = hi - lo < 2;
     const bool flat = !(gl[x] > gmin);
     const uint8_t keep = code[x];
-    code[x] = !searched ? keep
-                        : (narrow ? uint8_t{kCodeNoPeak}
-                                  : (flat ? uint8_t{kCodeRejectStructure} : keep));
+    code[x] = !searched
+                  ? keep
+                  : (narrow ? uint8_t{kCodeNoPeak} : (flat ? uint8_t{kCodeRejectStructure} : keep));
     const bool a = searched & !narrow & !flat;
     act[x] = a ? 1.f : 0.f;
     na += a;
@@ -326,7 +326,8 @@ void matchRow(const WindowLevel& c, int y, WorkerScratch& s) {
     // Effective range of each pixel at this window: its requested range, cut so that both
     // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
     // matched themselves (their ranges bound the right-to-left profiles).
-    denseRanges(W, r, rlo, rhi, s.eff_lo.data(), s.eff_hi.data(), s.eff_lo_f.data(), s.eff_hi_f.data());
+    denseRanges(W, r, rlo, rhi, s.eff_lo.data(), s.eff_hi.data(), s.eff_lo_f.data(),
+                s.eff_hi_f.data());
     computeRowMaps(c, s, y);
   } else {
     // The NCC statistics of the columns any open pixel's profiles or right-to-left checks can
@@ -334,8 +335,8 @@ void matchRow(const WindowLevel& c, int y, WorkerScratch& s) {
     // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
     if (c.uniform_ranges) {
       // Open pixel x reads right statistics at x - d and, through the right-to-left profile of
-      // x - d, left statistics at x - d + d' (d, d' in the range): columns x + lo_off .. x + hi_off.
-      // Merged over the open pixels, so gaps between clusters of open pixels are skipped.
+      // x - d, left statistics at x - d + d' (d, d' in the range): columns x + lo_off .. x +
+      // hi_off. Merged over the open pixels, so gaps between clusters of open pixels are skipped.
       const int lo_off = std::min({0, -c.dmax, c.dmin - c.dmax});
       const int hi_off = std::max({0, -c.dmin, c.dmax - c.dmin});
       int ia = -1, ib = -2;

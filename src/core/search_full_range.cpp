@@ -38,14 +38,13 @@ inline void layoutTrackers(int used, int* stride, int* d_off) {
   if (*d_off < values) *d_off += 1024;
 }
 
-
 /// One 8-lane group of a dense pixel's profile: S for the lanes k .. k + 7, stored to prof, and
 /// the right-to-left offers; with kMasked only the lanes inside [klo, khi] offer.
 template <bool kMasked>
 ES_INLINE void profileGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V8f il,
-                         const float* __restrict h, const float* __restrict sum_r_mirror,
-                         const float* __restrict inv_r_mirror, float* __restrict prof,
-                         float* __restrict rl_v, float* __restrict rl_d) {
+                            const float* __restrict h, const float* __restrict sum_r_mirror,
+                            const float* __restrict inv_r_mirror, float* __restrict prof,
+                            float* __restrict rl_v, float* __restrict rl_d) {
   const V8f sv = (load8(h + k) - ml * load8(sum_r_mirror + k)) * il * load8(inv_r_mirror + k);
   store8(prof + k, sv);
   const V8f rv = load8(rl_v + k);
@@ -55,29 +54,32 @@ ES_INLINE void profileGroup(int k, V8i kk, V8f dv, V8i vklo, V8i vkhi, V8f ml, V
   store8(rl_d + k, up ? dv : load8(rl_d + k));
 }
 
-
 /// The groups g0 .. g1 of one dense pixel (profilesForRow): its profile S formed and offered to the
-/// right-to-left trackers (profileGroup), then, for an active pixel, the peak trackers folded over it
-/// with each group's neighbours in registers (peakGroupReg; whole vector loads, forwarded from
+/// right-to-left trackers (profileGroup), then, for an active pixel, the peak trackers folded over
+/// it with each group's neighbours in registers (peakGroupReg; whole vector loads, forwarded from
 /// the stores just made; the lanes whose neighbour lies outside g0 .. g1 are masked: range
 /// ends). kNG > 0: g1 - g0 + 1 == kNG, known at compile time.
 template <int kNG>
 ES_INLINE void pixelProfile(int g0, int g1, V8i kk0, V8f dv0, V8i vklo, V8i vkhi, V8f ml, V8f il,
-                           const float* __restrict h, const float* __restrict sum_r_mirror,
-                           const float* __restrict inv_r_mirror, float* __restrict prof,
-                           float* __restrict rl_vm, float* __restrict rl_dm, bool act, V8f& bv,
-                           V8f& sv, V8i& bk) {
+                            const float* __restrict h, const float* __restrict sum_r_mirror,
+                            const float* __restrict inv_r_mirror, float* __restrict prof,
+                            float* __restrict rl_vm, float* __restrict rl_dm, bool act, V8f& bv,
+                            V8f& sv, V8i& bk) {
   const V8f eight_f = splat8(8.f);
   const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
   const int n = kNG > 0 ? kNG : g1 - g0 + 1;
-  profileGroup<true>(8 * g0, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof, rl_vm, rl_dm);
+  profileGroup<true>(8 * g0, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof,
+                     rl_vm, rl_dm);
   {
     V8f dv = dv0 + eight_f;
     V8i kk = kk0 + eight_i;
     for (int j = 1; j < n - 1; ++j, dv += eight_f, kk += eight_i) {
-      profileGroup<false>(8 * (g0 + j), kk, dv, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof, rl_vm, rl_dm);
+      profileGroup<false>(8 * (g0 + j), kk, dv, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror,
+                          prof, rl_vm, rl_dm);
     }
-    if (n > 1) profileGroup<true>(8 * g1, kk, dv, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof, rl_vm, rl_dm);
+    if (n > 1)
+      profileGroup<true>(8 * g1, kk, dv, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof,
+                         rl_vm, rl_dm);
   }
   if (!act) return;
   V8f prev = splat8(kNegInf), cur = load8(prof + 8 * g0);
@@ -92,8 +94,6 @@ ES_INLINE void pixelProfile(int g0, int g1, V8i kk0, V8f dv0, V8i vklo, V8i vkhi
   }
   if (n > 1) peakGroupReg<true>(cur, next, load8(prof + 8 * g1 + 8), kk, vklo, vkhi, bv, sv, bk);
 }
-
-
 
 /// Per-column groups for a stripe with per-pixel ranges: the union of the requested ranges of the
 /// stripe's pixels whose windows contain the column (a superset of what the column feeds).
@@ -160,15 +160,16 @@ struct FullRangeRowArgs {
 
 /// v[k] += li * ri[k] - lo * ro[k] for k < n (a multiple of 8): one row in and one out of a
 /// column's vertical sums, the group count fixed at compile time where byGroups can.
-ES_INLINE void addRowRemoveRow(int n, float* __restrict v, V8f li, V8f lo, const float* __restrict ri,
-                           const float* __restrict ro) {
-  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
-    constexpr int kG = decltype(groups)::value;
-    const int m = kG > 0 ? 8 * kG : n;
-    for (int k = 0; k < m; k += 8) {
-      store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
-    }
-  });
+ES_INLINE void addRowRemoveRow(int n, float* __restrict v, V8f li, V8f lo,
+                               const float* __restrict ri, const float* __restrict ro) {
+  byGroups(
+      n, [&](auto groups) __attribute__((always_inline)) {
+        constexpr int kG = decltype(groups)::value;
+        const int m = kG > 0 ? 8 * kG : n;
+        for (int k = 0; k < m; k += 8) {
+          store8(v + k, load8(v + k) + (li * load8(ri + k) - lo * load8(ro + k)));
+        }
+      });
 }
 
 /// Pass 1: the vertical sums of every column for the row, one row in and one out, or afresh.
@@ -255,11 +256,11 @@ ES_KERNEL void profilesForRow(const FullRangeRowArgs& a) {
     V8i bk = V8i{0, 0, 0, 0, 0, 0, 0, 0};
     const bool act = a.act[x] > 0.f;
     if (g1 - g0 == 7) {
-      pixelProfile<8>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof, rl_vm, rl_dm, act, bv,
-                     sv, bk);
+      pixelProfile<8>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof,
+                      rl_vm, rl_dm, act, bv, sv, bk);
     } else {
-      pixelProfile<0>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof, rl_vm, rl_dm, act, bv,
-                     sv, bk);
+      pixelProfile<0>(g0, g1, kk0, dv0, vklo, vkhi, ml, il, h, sum_r_mirror, inv_r_mirror, prof,
+                      rl_vm, rl_dm, act, bv, sv, bk);
     }
     if (!act) continue;
     pickPeak(bv, sv, bk, prof, klo, khi, a.dmin, &a.best[x], &a.best_d[x], &a.best_l[x],
@@ -269,7 +270,8 @@ ES_KERNEL void profilesForRow(const FullRangeRowArgs& a) {
 
 /// Merge the 8 tracker copies into the first: the highest value, ties to the smallest d (the
 /// order-free form of "strict >, disparities in increasing order").
-ES_KERNEL void mergeTrackerCopies(float* __restrict rl_v, float* __restrict rl_d, int stride, int n) {
+ES_KERNEL void mergeTrackerCopies(float* __restrict rl_v, float* __restrict rl_d, int stride,
+                                  int n) {
   for (int c = 1; c < 8; ++c) {
     const float* __restrict v = rl_v + static_cast<size_t>(c) * stride;
     const float* __restrict d = rl_d + static_cast<size_t>(c) * stride;

@@ -21,8 +21,8 @@ struct FullRangeScratch {
   std::vector<float> vsums;
   std::vector<int> vsum_g0, vsum_g1;  // per column: 8-lane groups held (g0 > g1: none)
   std::vector<int> span_lo, span_hi;
-  int vsum_row = -10;     // row the sums hold (all columns), -10 = none
-  int span_stripe = -1;   // stripe whose per-column groups vsum_g0/vsum_g1 were set for
+  int vsum_row = -10;    // row the sums hold (all columns), -10 = none
+  int span_stripe = -1;  // stripe whose per-column groups vsum_g0/vsum_g1 were set for
   // Reversed, padded row arrays (index rpad + W - 1 - q for right column q, so that q = x - d for
   // increasing d is contiguous): right statistics and the right-to-left tracker.
   int rpad = 0;

@@ -18,8 +18,6 @@ namespace detail {
 
 namespace {
 
-
-
 using namespace simd;
 // Sum of w consecutive 8-lane loads starting at p, with four partial sums so the additions do
 // not form one long dependency chain (exact: integer-valued data).
@@ -235,13 +233,12 @@ ES_INLINE void trackSliceImpl(const SliceArgs& g) {
 ES_KERNEL void trackSlice(const SliceArgs& g) { trackSliceImpl<true, true, 0>(g); }
 ES_KERNEL void trackSliceWidth7(const SliceArgs& g) { trackSliceImpl<true, true, 7>(g); }
 
-
-
 /// Make the vertical window sums of disparity index k valid on the columns @p need (sorted,
 /// disjoint intervals) of row y: columns already computed for row y are kept, columns valid for
 /// row y - 1 are updated by one row in and one row out, the rest are summed afresh over the
 /// window's rows. All exact, so the three ways give identical values.
-void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y, const std::vector<Interval>& need) {
+void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y,
+             const std::vector<Interval>& need) {
   const int d = c.dmin + k;
   const int r = c.r;
   const cv::Mat& lf = c.im->lf;
@@ -328,7 +325,8 @@ void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y, const std::
 /// disparity in its effective range; intervals closer than a window width are merged (their
 /// vertical sums overlap anyway). Clipped to the columns where both windows fit. Results in
 /// e.ivs / e.iv_start. Cost O(columns + blocks * disparities).
-void buildIntervals(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, const std::vector<int>& cols) {
+void buildIntervals(const WindowLevel& c, RowScratch& s, NarrowedScratch& e,
+                    const std::vector<int>& cols) {
   const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
   const int nb = static_cast<int>(e.block_a.size());
   // Coverage per block as a difference array over the disparity indices (kept all zero between
@@ -405,7 +403,8 @@ void buildIntervals(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, con
 /// NCC slice of disparity index k over columns [a, b] of row y, fed to the peak tracker (own
 /// profiles and right-to-left profiles); the vertical sums v (of disparity k) must be valid on
 /// [a - r, b + r].
-void sliceRange(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int a, int b, const float* v) {
+void sliceRange(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int a, int b,
+                const float* v) {
   const int d = c.dmin + k;
   const int r = c.r;
   // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
@@ -453,8 +452,8 @@ void sliceRange(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, 
 
 /// NCC slices of disparity index k over the column intervals @p out_ivs (sorted, disjoint) of
 /// row y (per-pixel ranges).
-void narrowedSlices(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int y, const Interval* out_ivs,
-                 int count) {
+void narrowedSlices(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int y,
+                    const Interval* out_ivs, int count) {
   if (count <= 0) return;
   const int r = c.r;
   e.need.clear();

@@ -21,8 +21,8 @@ struct VValidity {
 
 /// Scratch of the narrowed-range engine, one per worker.
 struct NarrowedScratch {
-  std::vector<float> v;          // vertical window sums, num_d rows of width
-  std::vector<VValidity> valid;  // per disparity
+  std::vector<float> v;                           // vertical window sums, num_d rows of width
+  std::vector<VValidity> valid;                   // per disparity
   std::vector<float> box_tmp_a, box_tmp_b, hsum;  // boxSumRow's passes and its result
   std::vector<int> cover;     // per block, per disparity: pixels whose range holds it
   std::vector<int> iv_start;  // per disparity: first index into ivs

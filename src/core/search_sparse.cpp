@@ -31,28 +31,29 @@ namespace {
 /// the rows summed in increasing order (one call instead of one per row); n whole groups.
 ES_KERNEL void colFresh(int n, float* __restrict cs, const float* __restrict l, size_t l_step,
                         const float* __restrict r, size_t r_step, int rows) {
-  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
-    constexpr int kG = decltype(groups)::value;
-    if (kG > 0) {
-      V8f acc[kG > 0 ? kG : 1];
-      const V8f l0 = splat8(l[0]);
-      for (int g = 0; g < kG; ++g) acc[g] = l0 * load8(r + 8 * g);
-      for (int j = 1; j < rows; ++j) {
-        const V8f lj = splat8(l[j * l_step]);
-        const float* __restrict rj = r + j * r_step;
-        for (int g = 0; g < kG; ++g) acc[g] += lj * load8(rj + 8 * g);
-      }
-      for (int g = 0; g < kG; ++g) store8(cs + 8 * g, acc[g]);
-      return;
-    }
-    const V8f l0 = splat8(l[0]);
-    for (int k = 0; k < n; k += 8) store8(cs + k, l0 * load8(r + k));
-    for (int j = 1; j < rows; ++j) {
-      const V8f lj = splat8(l[j * l_step]);
-      const float* __restrict rj = r + j * r_step;
-      for (int k = 0; k < n; k += 8) store8(cs + k, load8(cs + k) + lj * load8(rj + k));
-    }
-  });
+  byGroups(
+      n, [&](auto groups) __attribute__((always_inline)) {
+        constexpr int kG = decltype(groups)::value;
+        if (kG > 0) {
+          V8f acc[kG > 0 ? kG : 1];
+          const V8f l0 = splat8(l[0]);
+          for (int g = 0; g < kG; ++g) acc[g] = l0 * load8(r + 8 * g);
+          for (int j = 1; j < rows; ++j) {
+            const V8f lj = splat8(l[j * l_step]);
+            const float* __restrict rj = r + j * r_step;
+            for (int g = 0; g < kG; ++g) acc[g] += lj * load8(rj + 8 * g);
+          }
+          for (int g = 0; g < kG; ++g) store8(cs + 8 * g, acc[g]);
+          return;
+        }
+        const V8f l0 = splat8(l[0]);
+        for (int k = 0; k < n; k += 8) store8(cs + k, l0 * load8(r + k));
+        for (int j = 1; j < rows; ++j) {
+          const V8f lj = splat8(l[j * l_step]);
+          const float* __restrict rj = r + j * r_step;
+          for (int k = 0; k < n; k += 8) store8(cs + k, load8(cs + k) + lj * load8(rj + k));
+        }
+      });
 }
 /// cs[k] += l_in * r_in[k] - l_out * r_out[k]: one row in and one out; n whole groups.
 ES_INLINE void colStep(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
@@ -62,13 +63,14 @@ ES_INLINE void colStep(int n, float* __restrict cs, float l_in, const float* __r
     return;
   }
   const V8f li = splat8(l_in), lo = splat8(l_out);
-  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
-    constexpr int kG = decltype(groups)::value;
-    const int m = kG > 0 ? 8 * kG : n;
-    for (int k = 0; k < m; k += 8) {
-      store8(cs + k, load8(cs + k) + (li * load8(r_in + k) - lo * load8(r_out + k)));
-    }
-  });
+  byGroups(
+      n, [&](auto groups) __attribute__((always_inline)) {
+        constexpr int kG = decltype(groups)::value;
+        const int m = kG > 0 ? 8 * kG : n;
+        for (int k = 0; k < m; k += 8) {
+          store8(cs + k, load8(cs + k) + (li * load8(r_in + k) - lo * load8(r_out + k)));
+        }
+      });
 }
 ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* __restrict r_in,
                           float l_out, const float* __restrict r_out) {
@@ -76,11 +78,12 @@ ES_KERNEL void colRunning(int n, float* __restrict cs, float l_in, const float* 
 }
 /// h[k] += a[k]; n whole groups.
 ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
-  byGroups(n, [&](auto groups) __attribute__((always_inline)) {
-    constexpr int kG = decltype(groups)::value;
-    const int m = kG > 0 ? 8 * kG : n;
-    for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + load8(a + k));
-  });
+  byGroups(
+      n, [&](auto groups) __attribute__((always_inline)) {
+        constexpr int kG = decltype(groups)::value;
+        const int m = kG > 0 ? 8 * kG : n;
+        for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + load8(a + k));
+      });
 }
 /// h[k] += a[k] - b[k]; n whole groups (also the dense engine's window slide, inlined there).
 ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
@@ -88,12 +91,11 @@ ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
   addSubGroups(n, h, a, b);
 }
 
-
-
 /// The disparity indices [k0, k1] column x's sums must hold at row y: the union of the effective
 /// ranges of the pixels whose windows contain the column (the only NCC values it feeds), widened
 /// to whole 8-lane groups. Cached per row.
-inline void columnRequest(const WindowLevel& c, RowScratch& s, SparseScratch& e, int x, int* k0, int* k1) {
+inline void columnRequest(const WindowLevel& c, RowScratch& s, SparseScratch& e, int x, int* k0,
+                          int* k1) {
   if (e.req_stamp[x] == s.stamp) {
     *k0 = e.req_k0[x];
     *k1 = e.req_k1[x];
@@ -221,12 +223,13 @@ void updateHotColumns(const WindowLevel& c, RowScratch& s, SparseScratch& e, int
 // (kept, one row in and one out, afresh), the same hot-column carrying. R(y', q) is the scalar,
 // L(y', q + d) for increasing d the contiguous run (lf_pad).
 void updateHotColumnsR(const WindowLevel& c, RowScratch& s, SparseScratch& e, int y) {
-  carryHotColumns(c, y, e.hot_r, e.colr_row, e.colr_used, e.colr_k0, e.colr_k1, e.colsum_r,
-                  s.dpad, c.im->rf, c.im->lf_pad, c.im->l_pad + c.dmin, +1);
+  carryHotColumns(c, y, e.hot_r, e.colr_row, e.colr_used, e.colr_k0, e.colr_k1, e.colsum_r, s.dpad,
+                  c.im->rf, c.im->lf_pad, c.im->l_pad + c.dmin, +1);
 }
 
 /// Make right column q's sums valid for row y on disparity indices [k0, k1] (whole 8-lane groups).
-inline void ensureColumnR(const WindowLevel& c, RowScratch& s, SparseScratch& e, int q, int y, int k0, int k1) {
+inline void ensureColumnR(const WindowLevel& c, RowScratch& s, SparseScratch& e, int q, int y,
+                          int k0, int k1) {
   e.colr_used[q] = y;
   const bool covers = e.colr_k0[q] <= k0 && k1 <= e.colr_k1[q];
   if (e.colr_row[q] == y && covers) return;
@@ -236,8 +239,8 @@ inline void ensureColumnR(const WindowLevel& c, RowScratch& s, SparseScratch& e,
   if (e.colr_row[q] == y - 1 && covers) {
     const int a = e.colr_k0[q], n = e.colr_k1[q] - a + 1;
     const int base = c.im->l_pad + q + c.dmin + a;
-    colRunning(n, e.colsum_r.data() + static_cast<size_t>(q) * s.dpad + a,
-               rf.ptr<float>(y + r)[q], lp.ptr<float>(y + r) + base, rf.ptr<float>(y - r - 1)[q],
+    colRunning(n, e.colsum_r.data() + static_cast<size_t>(q) * s.dpad + a, rf.ptr<float>(y + r)[q],
+               lp.ptr<float>(y + r) + base, rf.ptr<float>(y - r - 1)[q],
                lp.ptr<float>(y - r - 1) + base);
     e.colr_row[q] = y;
     return;
@@ -278,13 +281,12 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
   }
 }
 
-
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1, n >= 3), the same
 /// rules as the dense engines: per lane the best interior maximum (first of equal values), its
 /// index and the lane's best other maximum, then butterfly reductions. prof[-1] and whole groups
 /// past n must be readable (masked).
-ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* best,
-                           float* best_d, float* best_l, float* best_r, float* second) {
+ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* best, float* best_d,
+                           float* best_l, float* best_r, float* second) {
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
   const V8i eight_i = {8, 8, 8, 8, 8, 8, 8, 8};
   const V8i vklo = {0, 0, 0, 0, 0, 0, 0, 0};
@@ -310,7 +312,6 @@ ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* b
   }
   pickPeak(bv, sv, bk, prof, 0, khi, lo, best, best_d, best_l, best_r, second);
 }
-
 
 /// Profiles of the active pixels of row y (phase A), from per-column sums.
 /// Per-pixel ranges: the disparity indices each column of the run of active pixels
@@ -418,8 +419,8 @@ void sparseProfiles(const WindowLevel& c, RowScratch& s, SparseScratch& e, int y
         const int m = c.width - 1 - x + lo;  // mirrored index of x - lo
         nccProfile(hi - lo + 1, h + (lo - c.dmin), s.maps.mean_l[x], s.maps.inv_l[x],
                    s.maps.sum_r_rev.data() + m, s.maps.inv_r_rev.data() + m, e.prof0);
-        scanProfile(e.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x],
-                    &s.best_r[x], &s.second[x]);
+        scanProfile(e.prof0, hi - lo + 1, lo, &s.best[x], &s.best_d[x], &s.best_l[x], &s.best_r[x],
+                    &s.second[x]);
       }
       if (x < b) {
         vecAddSub(nk, h + k0, cs0 + static_cast<size_t>(x + r + 1) * dp,
@@ -585,8 +586,8 @@ void sparseRightToLeft(const WindowLevel& c, RowScratch& s, SparseScratch& e, in
   } else if (d0 <= d1) {
     float* v = e.prof0;
     const int n = d1 - d0 + 1;
-    nccSpan(n, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0, s.maps.inv_l.data() + q + d0,
-            sr, ir, v);
+    nccSpan(n, h + (d0 - c.dmin), s.maps.mean_l.data() + q + d0, s.maps.inv_l.data() + q + d0, sr,
+            ir, v);
     // With a full search every left pixel inside the border has d in its range: the highest
     // value, at its smallest d (what "strict >, d increasing" keeps).
     const int i = firstMax(v, n);

@@ -57,6 +57,5 @@ ES_INLINE bool anyLane(V8i m) {
   return ((t[0] | t[1]) | (t[2] | t[3])) != 0;
 }
 
-
 }  // namespace simd
 }  // namespace endo_stereo

@@ -19,8 +19,6 @@ using namespace simd;
 
 namespace {
 
-
-
 /// Inclusive prefix sum over the 8 lanes of @p v (three shifted adds), plus @p carry in every lane.
 ES_INLINE V8u lanePrefix(V8u v, V8u carry) {
   const V8u z = {0, 0, 0, 0, 0, 0, 0, 0};
@@ -114,7 +112,6 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sum, cv::
   }
 }
 
-
 namespace {
 
 // vectorise: the double part, then the float square roots with SSE (the scalar std::sqrt keeps
@@ -167,8 +164,8 @@ ES_INLINE void statsRowIntImpl(const cv::Mat& int_sum, const cv::Mat& int_sq, in
     const double a = n * sq - sum * sum;
     const float q = static_cast<float>(a) / nf;  // unconditional: the loop vectorises
     inv[x] = a > 0.5 ? q : 0.f;
-    mean_or_sum[x] = kAsMean ? static_cast<float>((sum - 128.0 * n) / n)
-                             : static_cast<float>(sum - 128.0 * n);
+    mean_or_sum[x] =
+        kAsMean ? static_cast<float>((sum - 128.0 * n) / n) : static_cast<float>(sum - 128.0 * n);
   }
 }
 ES_KERNEL void statsRowInt(const cv::Mat& int_sum, const cv::Mat& int_sq, int y, int r, int x0,
@@ -262,14 +259,13 @@ void ensureMapsL(const WindowLevel& c, RowScratch& s, int y, int x0, int x1) {
     }
     int e = x;
     while (e + 1 <= x1 && stamp[e + 1] != s.stamp) ++e;
-    statsRowInt(c.im->int_l, c.im->sq_l, y, c.r, x, e, n, s.maps.mean_l.data(),
-                s.maps.inv_l.data(), true);
+    statsRowInt(c.im->int_l, c.im->sq_l, y, c.r, x, e, n, s.maps.mean_l.data(), s.maps.inv_l.data(),
+                true);
     invSqrtRow(e - x + 1, s.maps.inv_l.data() + x);
     std::fill(stamp + x, stamp + e + 1, s.stamp);
     x = e + 1;
   }
 }
-
 
 }  // namespace detail
 }  // namespace endo_stereo

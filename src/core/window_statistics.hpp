@@ -49,8 +49,8 @@ inline void computeMapL(const WindowLevel& c, RowScratch& s, int x, int y) {
 }
 inline void computeGammaL(const WindowLevel& c, RowScratch& s, int x, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  s.maps.gamma_l[x] = gammaOf(n, boxAt(c.im->int_lap_l, x, y, c.r),
-                              boxAt(c.im->sq_lap_l, x, y, c.r));
+  s.maps.gamma_l[x] =
+      gammaOf(n, boxAt(c.im->int_lap_l, x, y, c.r), boxAt(c.im->sq_lap_l, x, y, c.r));
 }
 inline void computeMapR(const WindowLevel& c, RowScratch& s, int q, int y) {
   const double n = static_cast<double>(c.w) * c.w;
@@ -61,8 +61,8 @@ inline void computeMapR(const WindowLevel& c, RowScratch& s, int q, int y) {
 }
 inline void computeGammaR(const WindowLevel& c, RowScratch& s, int q, int y) {
   const double n = static_cast<double>(c.w) * c.w;
-  s.maps.gamma_r[q] = gammaOf(n, boxAt(c.im->int_lap_r, q, y, c.r),
-                              boxAt(c.im->sq_lap_r, q, y, c.r));
+  s.maps.gamma_r[q] =
+      gammaOf(n, boxAt(c.im->int_lap_r, q, y, c.r), boxAt(c.im->sq_lap_r, q, y, c.r));
 }
 
 // The row-wide statistics are the same expressions as invStd/gammaOf, split into passes that
@@ -100,8 +100,8 @@ void wrappedIntegrals(const cv::Mat& img, const cv::Mat& lap, cv::Mat& sum, cv::
 /// All statistics of row y (columns r .. W - 1 - r), as computeMapL/R give them one by one.
 /// With @p with_gamma false only the NCC statistics are computed, on columns [x0, x1] (the
 /// structure values are then computed lazily where needed).
-void computeRowMaps(const WindowLevel& c, RowScratch& s, int y, bool with_gamma = true,
-                    int x0 = -1, int x1 = -1);
+void computeRowMaps(const WindowLevel& c, RowScratch& s, int y, bool with_gamma = true, int x0 = -1,
+                    int x1 = -1);
 
 /// Right NCC statistics of row y on columns [x0, x1] (inside the border), with their mirrored
 /// copies, marked computed for this row.

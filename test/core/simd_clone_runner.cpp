@@ -6,8 +6,8 @@
 
 namespace endo_stereo {
 
-CloneTestOutput runMatcherForCloneTest(const cv::Mat& left, const cv::Mat& right,
-                                       const cv::Mat& lo, const cv::Mat& hi, int threads) {
+CloneTestOutput runMatcherForCloneTest(const cv::Mat& left, const cv::Mat& right, const cv::Mat& lo,
+                                       const cv::Mat& hi, int threads) {
   MatcherParams mp;  // the default preset: depth-edge filter and its second chance on
   mp.min_disparity = 0;
   mp.max_disparity = 47;

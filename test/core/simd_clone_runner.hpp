@@ -13,8 +13,8 @@ struct CloneTestOutput {
 /// The two configurations the test runs: the default presets (depth-edge filter with its second
 /// chance, post-filters) on a full search, and the same with per-pixel ranges @p lo / @p hi
 /// (CV_16SC1; empty = full search). @p threads: MatcherParams::num_threads.
-#define ES_DECLARE_CLONE_RUNNER(ns)                                                        \
-  namespace ns {                                                                           \
-  CloneTestOutput runMatcherForCloneTest(const cv::Mat& left, const cv::Mat& right,        \
+#define ES_DECLARE_CLONE_RUNNER(ns)                                                          \
+  namespace ns {                                                                             \
+  CloneTestOutput runMatcherForCloneTest(const cv::Mat& left, const cv::Mat& right,          \
                                          const cv::Mat& lo, const cv::Mat& hi, int threads); \
   }

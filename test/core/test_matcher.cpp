@@ -286,11 +286,12 @@ void expectSameAsReference(const SyntheticScene& s, const MatcherParams& p, cons
   for (const int c : {kCodeRejectPeakGap, kCodeRejectLeftRight}) {
     EXPECT_GT(cv::countNonZero(ref.code == c), 0) << "no pixel with code " << c;
   }
-  std::printf("reference comparison: %d code, %d disparity, %d confidence differences, %d accepted, "
-              "%d peak-gap, %d left-right, %d no-peak, %d structure rejections\n",
-              code_diff, disp_diff, conf_diff, accepted, cv::countNonZero(ref.code == kCodeRejectPeakGap),
-              cv::countNonZero(ref.code == kCodeRejectLeftRight), cv::countNonZero(ref.code == kCodeNoPeak),
-              cv::countNonZero(ref.code == kCodeRejectStructure));
+  std::printf(
+      "reference comparison: %d code, %d disparity, %d confidence differences, %d accepted, "
+      "%d peak-gap, %d left-right, %d no-peak, %d structure rejections\n",
+      code_diff, disp_diff, conf_diff, accepted, cv::countNonZero(ref.code == kCodeRejectPeakGap),
+      cv::countNonZero(ref.code == kCodeRejectLeftRight), cv::countNonZero(ref.code == kCodeNoPeak),
+      cv::countNonZero(ref.code == kCodeRejectStructure));
 }
 
 TEST_F(MatcherTest, MatchesTheReferenceImplementationFullSearch) {
@@ -367,8 +368,9 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
       const int rad = rng.uniform(1, 7);
       const bool full = rng.uniform(0, 5) == 0;
       rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(full ? 0 : g - rad);
-      rg.hi.at<int16_t>(y, x) =
-          static_cast<int16_t>(full ? 24 : rng.uniform(0, 20) == 0 ? g - rad - 1 : g + rad);
+      rg.hi.at<int16_t>(y, x) = static_cast<int16_t>(full                      ? 24
+                                                     : rng.uniform(0, 20) == 0 ? g - rad - 1
+                                                                               : g + rad);
     }
   }
   MatcherParams p = range(0, 24);

@@ -250,7 +250,8 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
     for (auto it = std::sregex_iterator(body.begin(), body.end(), field_re);
          it != std::sregex_iterator(); ++it) {
       const std::string key = std::string(src.section) + "." + (*it)[1].str();
-      EXPECT_EQ(keys.count(key), 1u) << key << " (" << src.strukt << ") has no key in params_io.cpp";
+      EXPECT_EQ(keys.count(key), 1u)
+          << key << " (" << src.strukt << ") has no key in params_io.cpp";
       ++found;
     }
     EXPECT_GT(found, 0) << src.strukt;

@@ -1,12 +1,12 @@
 // Isolated-outlier removal and small-hole filling (docs/method.md section 3) on hand-made maps.
 #include <gtest/gtest.h>
 
-#include <cmath>
-#include <opencv2/core/utility.hpp>
-#include <vector>
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+#include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
 
@@ -167,8 +167,8 @@ TEST(IsolatedOutliers, MatchesThePlainRuleOnRandomMaps) {
   EXPECT_EQ(cases, 27);
 }
 
-// docs/method.md's hole rule written out plainly: an invalid pixel inside a horizontal or vertical run
-// of at most max_hole invalid pixels with a valid pixel at both ends takes the lower median of
+// docs/method.md's hole rule written out plainly: an invalid pixel inside a horizontal or vertical
+// run of at most max_hole invalid pixels with a valid pixel at both ends takes the lower median of
 // its valid 8-neighbours in the input map.
 cv::Mat referenceFill(const cv::Mat& d, int max_hole) {
   auto invalid = [&](int y, int x) { return std::isnan(d.at<float>(y, x)); };

@@ -297,7 +297,8 @@ TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
     for (const auto& r : {std::make_pair(0, 24), std::make_pair(0, 31), std::make_pair(0, 39),
                           std::make_pair(0, 47), std::make_pair(0, 60), std::make_pair(0, 95),
                           std::make_pair(17, 23)}) {
-      const RectificationQuality qr = measureRowAlignmentPatches(left, right, r.first, r.second, 300);
+      const RectificationQuality qr =
+          measureRowAlignmentPatches(left, right, r.first, r.second, 300);
       ASSERT_TRUE(qr.valid) << r.first << ".." << r.second << ": " << qr.message;
       EXPECT_GE(qr.num_matches, 100) << r.first << ".." << r.second;
       EXPECT_NEAR(qr.median_offset_px, dy, 0.15) << r.first << ".." << r.second;

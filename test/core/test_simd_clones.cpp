@@ -71,16 +71,16 @@ void expectClonesAgree(const SyntheticScene& s, const cv::Mat& lo, const cv::Mat
   EXPECT_EQ(differingPixels(base, dispatched(s.left, s.right, lo, hi, 2)), 0)
       << "the dispatched library differs from the baseline clone";
   if (cpuHasAvx2()) {
-    EXPECT_EQ(differingPixels(base, endo_stereo_clone_avx2::runMatcherForCloneTest(
-                                        s.left, s.right, lo, hi, 1)),
+    EXPECT_EQ(differingPixels(
+                  base, endo_stereo_clone_avx2::runMatcherForCloneTest(s.left, s.right, lo, hi, 1)),
               0)
         << "the AVX2 clone differs from the baseline clone";
   } else {
     std::printf("this CPU has no AVX2: the AVX2 clone is not run\n");
   }
   if (cpuHasX86_64V4()) {
-    EXPECT_EQ(differingPixels(base, endo_stereo_clone_v4::runMatcherForCloneTest(
-                                        s.left, s.right, lo, hi, 1)),
+    EXPECT_EQ(differingPixels(
+                  base, endo_stereo_clone_v4::runMatcherForCloneTest(s.left, s.right, lo, hi, 1)),
               0)
         << "the x86-64-v4 (AVX-512) clone differs from the baseline clone";
   } else {

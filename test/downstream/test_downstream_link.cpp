@@ -3,13 +3,13 @@
 // (find_package(catkin REQUIRED COMPONENTS endo_stereo): the exported include directories and
 // libraries), built, and run; it matches a generated pair and checks the result.
 #include <gtest/gtest.h>
+#include <sys/wait.h>
 
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <sstream>
 #include <string>
-#include <sys/wait.h>
 
 namespace {
 
@@ -31,21 +31,26 @@ std::string tail(const std::string& path, size_t max_chars = 4000) {
 }
 
 TEST(DownstreamPackage, FindsLinksAndRunsTheCore) {
-  const std::string src = std::string(ES_SOURCE_DIR) + "/test/downstream/endo_stereo_downstream_check";
+  const std::string src =
+      std::string(ES_SOURCE_DIR) + "/test/downstream/endo_stereo_downstream_check";
   const std::string build = std::string(ES_BINARY_DIR) + "/downstream_check";
   ASSERT_EQ(run("rm -rf '" + build + "' && mkdir -p '" + build + "'", "/dev/null"), 0);
   const std::string configure_log = build + "/configure.log";
   // The devel space of this build is the only place endo_stereo is found (no installed copy).
-  const int configured = run("cmake -S '" + src + "' -B '" + build + "/build' -DCMAKE_PREFIX_PATH='" +
-                                 ES_DEVEL_PREFIX + "' -DCATKIN_DEVEL_PREFIX='" + build +
-                                 "/devel' -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 -DCATKIN_ENABLE_TESTING=OFF",
-                             configure_log);
+  const int configured =
+      run("cmake -S '" + src + "' -B '" + build + "/build' -DCMAKE_PREFIX_PATH='" +
+              ES_DEVEL_PREFIX + "' -DCATKIN_DEVEL_PREFIX='" + build +
+              "/devel' -DPYTHON_EXECUTABLE=/usr/bin/python3 -DPython3_EXECUTABLE=/usr/bin/python3 "
+              "-DCATKIN_ENABLE_TESTING=OFF",
+          configure_log);
   ASSERT_EQ(configured, 0) << "configuring the downstream package failed:\n" << tail(configure_log);
   const std::string build_log = build + "/build.log";
   ASSERT_EQ(run("cmake --build '" + build + "/build' -j2", build_log), 0)
-      << "building the downstream package failed:\n" << tail(build_log);
+      << "building the downstream package failed:\n"
+      << tail(build_log);
   const std::string run_log = build + "/run.log";
-  const int rc = run("'" + build + "/devel/lib/endo_stereo_downstream_check/downstream_match'", run_log);
+  const int rc =
+      run("'" + build + "/devel/lib/endo_stereo_downstream_check/downstream_match'", run_log);
   EXPECT_EQ(rc, 0) << tail(run_log);
   std::printf("%s", tail(run_log).c_str());
 }

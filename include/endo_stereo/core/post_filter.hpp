@@ -33,8 +33,9 @@ struct PostFilterParams {
   std::string validate() const;
 };
 
-/// Isolated-outlier removal (docs/method.md section 3) in place on a CV_32FC1 disparity (NaN invalid);
-/// marks removed pixels kCodeRejectOutlier (matcher.hpp) in @p code (CV_8UC1) when not empty.
+/// Isolated-outlier removal (docs/method.md section 3) in place on a CV_32FC1 disparity (NaN
+/// invalid); marks removed pixels kCodeRejectOutlier (matcher.hpp) in @p code (CV_8UC1) when not
+/// empty.
 /// @return the number of pixels removed.
 int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
 

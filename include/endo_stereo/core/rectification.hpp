@@ -306,8 +306,8 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
  * inside one). The rectifier measures with this in every mode, except while uncalibrated mode
  * pools SIFT matches for an estimate (it then uses those matches).
  */
-RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
-                                                const cv::Mat& right_gray, int min_disparity,
-                                                int max_disparity, int max_patches);
+RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
+                                                int min_disparity, int max_disparity,
+                                                int max_patches);
 
 }  // namespace endo_stereo

@@ -28,7 +28,7 @@ int main() {
   mask.colRange(shift, width).setTo(255);
   const endo_stereo::DisparityScore score =
       endo_stereo::scoreDisparity(result.disparity, truth, mask);
-  std::printf("downstream_match: density %.3f, pixels off by more than 1 px: %lld\n",
-              score.density, static_cast<long long>(score.n_bad1));
+  std::printf("downstream_match: density %.3f, pixels off by more than 1 px: %lld\n", score.density,
+              static_cast<long long>(score.n_bad1));
   return score.density > 0.8 && score.n_bad1 == 0 ? 0 : 1;
 }
