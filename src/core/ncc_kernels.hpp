@@ -120,7 +120,7 @@ ES_INLINE void peakGroup(int k, V8i kk, V8i vklo, V8i vkhi, const float* __restr
 }
 
 /// foldPeaks on a group held in a register, its neighbours taken from the groups before and
-/// after by lane shifts. The dense engine stores a profile's groups just before it analyses
+/// after by lane shifts. The full-range engine stores a profile's groups just before it analyses
 /// them, and a load at prof + k - 1 straddles two of those stores, which the store buffer cannot
 /// forward (a stall per group); the values are the same.
 template <bool kMasked>

@@ -22,7 +22,7 @@ namespace detail {
 
 namespace {
 
-/// Layout of the dense engine's right-to-left trackers (profilesForRow), 8 copies of `used` floats
+/// Layout of the right-to-left trackers (profilesForRow), 8 copies of `used` floats
 /// for the values and 8 for the disparities, chosen against 4K aliasing: a load whose address
 /// matches an earlier, still pending store's in the low 12 bits waits as if it depended on it.
 /// A pixel's tracker groups span up to 288 bytes of its copy; the next pixel uses the next copy

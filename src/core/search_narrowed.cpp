@@ -101,7 +101,7 @@ void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) 
   }
 }
 
-/// Inputs of the dense engine's per-disparity update of one row interval. Pointers are offset so
+/// Inputs of the per-disparity update of one row interval. Pointers are offset so
 /// that index i is column x = a + i (left quantities) or right column x - d (right quantities and
 /// rb_*). When v is set, the horizontal window sum is taken from it directly (w loads per value,
 /// cheaper than the doubling passes for small windows); otherwise h holds it.

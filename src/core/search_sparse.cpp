@@ -85,7 +85,8 @@ ES_KERNEL void vecAdd(int n, float* __restrict h, const float* __restrict a) {
         for (int k = 0; k < m; k += 8) store8(h + k, load8(h + k) + load8(a + k));
       });
 }
-/// h[k] += a[k] - b[k]; n whole groups (also the dense engine's window slide, inlined there).
+/// h[k] += a[k] - b[k]; n whole groups (the full-range engine slides its windows with addSubGroups,
+/// ncc_kernels.hpp).
 ES_KERNEL void vecAddSub(int n, float* __restrict h, const float* __restrict a,
                          const float* __restrict b) {
   addSubGroups(n, h, a, b);
@@ -219,9 +220,9 @@ void updateHotColumns(const WindowLevel& c, RowScratch& s, SparseScratch& e, int
                   c.im->lf, c.im->rf_rev, c.im->rev_pad + c.width - 1 + c.dmin, -1);
 }
 
-// Right-indexed column sums (see Scratch::colsum_r): the same three ways to make a column valid
-// (kept, one row in and one out, afresh), the same hot-column carrying. R(y', q) is the scalar,
-// L(y', q + d) for increasing d the contiguous run (lf_pad).
+// Right-indexed column sums (see SparseScratch::colsum_r): the same three ways to make a column
+// valid (kept, one row in and one out, afresh), the same hot-column carrying. R(y', q) is the
+// scalar, L(y', q + d) for increasing d the contiguous run (lf_pad).
 void updateHotColumnsR(const WindowLevel& c, RowScratch& s, SparseScratch& e, int y) {
   carryHotColumns(c, y, e.hot_r, e.colr_row, e.colr_used, e.colr_k0, e.colr_k1, e.colsum_r, s.dpad,
                   c.im->rf, c.im->lf_pad, c.im->l_pad + c.dmin, +1);
@@ -282,9 +283,9 @@ ES_KERNEL void nccProfile(int n, const float* __restrict h, float mean_l, float 
 }
 
 /// Peak analysis of one complete profile prof[0..n) (disparities lo..lo+n-1, n >= 3), the same
-/// rules as the dense engines: per lane the best interior maximum (first of equal values), its
-/// index and the lane's best other maximum, then butterfly reductions. prof[-1] and whole groups
-/// past n must be readable (masked).
+/// rules as the other engines (ncc_kernels.hpp): per lane the best interior maximum (first of equal
+/// values), its index and the lane's best other maximum, then butterfly reductions. prof[-1] and
+/// whole groups past n must be readable (masked).
 ES_KERNEL void scanProfile(const float* __restrict prof, int n, int lo, float* best, float* best_d,
                            float* best_l, float* best_r, float* second) {
   const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
@@ -504,7 +505,7 @@ void sparseRow(const WindowLevel& c, RowScratch& s, SparseScratch& e, int y) {
 }
 
 /// Right-to-left profile of right pixel q (phase B): the best d of S(q + d, d) over the left
-/// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the dense engine.
+/// pixels q + d whose effective range holds d. Ties keep the smallest d, as in the other engines.
 void sparseRightToLeft(const WindowLevel& c, RowScratch& s, SparseScratch& e, int q, int y) {
   const int r = c.r;
   // Disparities whose left pixel q + d has d in its range: all of them inside the border with a
