@@ -1,7 +1,9 @@
-// Post-processing of the robust matcher (METHOD.md section 3): isolated-outlier removal and the
-// filling of holes one or two pixels wide. Both functions decide every pixel from the input map
+// Post-processing of the robust matcher (docs/method.md section 3): isolated-outlier removal and
+// the filling of holes one or two pixels wide. Both functions decide every pixel from the input map
 // alone (never from pixels changed in the same pass), so the result does not depend on the order
 // in which pixels are visited.
+#include "endo_stereo/core/post_filter.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <cstring>
@@ -150,7 +152,7 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   const int half = params.outlier_window_px / 2;
   const float tol = static_cast<float>(params.outlier_disparity_tol_px);
   // N / window^2 < mu, with N counting the agreeing neighbours (the pixel itself excluded) and the
-  // denominator fixed at window^2 also at the image border, as METHOD.md writes it. N is an
+  // denominator fixed at window^2 also at the image border, as docs/method.md writes it. N is an
   // integer, so "N < need" is "N < ceil(need)".
   const double need =
       params.outlier_min_share * params.outlier_window_px * params.outlier_window_px;
@@ -305,10 +307,9 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
             }
           }
           if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
-          static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4},
-                                              {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
-                                              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4},
-                                              {3, 6}, {1, 2}, {3, 4}, {5, 6}};
+          static constexpr int kNet[19][2] = {
+              {0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
+              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
           for (const auto& c : kNet) {
             const float a = v[c[0]], b = v[c[1]];
             v[c[0]] = std::min(a, b);

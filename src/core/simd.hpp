@@ -1,8 +1,9 @@
 // Private to the core: 8-lane float helpers on GCC vector types and the dispatch attribute of the
-// hot kernels (AVX2 and baseline clones chosen at load time), shared by matcher.cpp and
-// edge_test.cpp. Not installed, not part of the API.
+// hot kernels (AVX-512, AVX2 and baseline clones chosen at load time), shared by the matcher's
+// files and the depth-edge filter. Not installed, not part of the API.
 #pragma once
 
+#include <cstdint>
 #include <cstring>
 
 namespace endo_stereo {
@@ -14,7 +15,16 @@ namespace simd {
 // search -4.5%, +-4 px range -7% on the benchmark's 960x540 case, 2026-11-23). The core builds
 // with -ffp-contract=off (CMakeLists.txt): v4 has FMA, and a fused multiply-add rounds once
 // where the other clones round twice, so without it the clones' outputs would differ. --------
-#if defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
+// ES_KERNEL_CLONE (1 baseline, 2 avx2, 3 x86-64-v4) builds one clone alone, as the target
+// attribute of that clone: test_simd_clones builds the matcher once per clone this way and
+// checks that all of them, and the dispatched library, give the same output.
+#if defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 1
+#define ES_KERNEL
+#elif defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 2
+#define ES_KERNEL __attribute__((target("avx2")))
+#elif defined(ES_KERNEL_CLONE) && ES_KERNEL_CLONE == 3
+#define ES_KERNEL __attribute__((target("arch=x86-64-v4")))
+#elif defined(__x86_64__) && defined(__GNUC__) && !defined(__clang__) && \
     !defined(__SANITIZE_ADDRESS__) && !defined(__SANITIZE_THREAD__)
 #define ES_KERNEL __attribute__((target_clones("arch=x86-64-v4", "avx2", "default")))
 #else
@@ -27,6 +37,10 @@ namespace simd {
 #pragma GCC diagnostic ignored "-Wpsabi"
 typedef float V8f __attribute__((vector_size(32)));
 typedef int V8i __attribute__((vector_size(32)));
+typedef uint32_t V8u __attribute__((vector_size(32)));
+// Eight bytes (per-pixel codes and flags) and their masks, selected as bytes.
+typedef uint8_t V8u8 __attribute__((vector_size(8)));
+typedef int8_t V8s8 __attribute__((vector_size(8)));
 
 ES_INLINE V8f load8(const float* p) {
   V8f v;
@@ -42,7 +56,6 @@ ES_INLINE bool anyLane(V8i m) {
   const V4l t = reinterpret_cast<V4l>(m);
   return ((t[0] | t[1]) | (t[2] | t[3])) != 0;
 }
-
 
 }  // namespace simd
 }  // namespace endo_stereo

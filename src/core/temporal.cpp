@@ -1,4 +1,4 @@
-// Temporal priors, fusion and coverage (METHOD.md section 4). See temporal.hpp.
+// Temporal priors, fusion and coverage (docs/method.md section 4). See temporal.hpp.
 #include "endo_stereo/core/temporal.hpp"
 
 #include <algorithm>

@@ -1,21 +1,20 @@
-// Bad-input regression tests at the core level (issue 6, RELIABILITY.md): every entry of the
+// Bad-input regression tests at the core level (RELIABILITY.md): every entry of the
 // bad-input inventory that exists without ROS is fed to endo_stereo::Pipeline (or the loader /
 // buffer wrapper it reaches), and each must give a clear error naming the problem, or a defined
 // behaviour, and leave the pipeline able to process the next good pair. The crashes found by the
 // libFuzzer harnesses (test/fuzz, scripts/fuzz.sh) are kept here as tests too ("Fuzz" suites).
+#include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <cmath>
 #include <cstdint>
 #include <fstream>
 #include <limits>
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 #include <stdexcept>
 #include <string>
 #include <vector>
-
-#include <gtest/gtest.h>
-#include <opencv2/core.hpp>
-#include <opencv2/imgproc.hpp>
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/params_io.hpp"
@@ -27,7 +26,7 @@ namespace {
 
 constexpr int kWidth = 64;
 constexpr int kHeight = 48;
-constexpr int kShiftPx = 6;       // true disparity of the good pair
+constexpr int kShiftPx = 6;  // true disparity of the good pair
 constexpr double kFocalPx = 80.0;
 constexpr double kBaselineM = 0.005;
 const double kNaN = std::numeric_limits<double>::quiet_NaN();
@@ -74,8 +73,8 @@ StereoCalibration idealCalibration(cv::Size size = cv::Size(kWidth, kHeight),
     c->distortion_model = "plumb_bob";
     c->D.assign(5, 0.0);
     c->K = cv::Matx33d(kFocalPx, 0, size.width / 2.0, 0, kFocalPx, size.height / 2.0, 0, 0, 1);
-    c->P = cv::Matx34d(kFocalPx, 0, size.width / 2.0, 0, 0, kFocalPx, size.height / 2.0, 0, 0, 0,
-                       1, 0);
+    c->P = cv::Matx34d(kFocalPx, 0, size.width / 2.0, 0, 0, kFocalPx, size.height / 2.0, 0, 0, 0, 1,
+                       0);
   }
   s.left.frame_id = "left_optical";
   s.right.frame_id = "right_optical";
@@ -225,13 +224,13 @@ TEST(BadImage, DifferentLeftAndRightSizesAreRefused) {
 TEST(BadImage, EveryUnsupportedEncodingIsRefusedByName) {
   Pipeline pipeline(passThroughParams());
   double stamp = 1.0;
-  for (const char* enc : {"bayer_rggb8", "bayer_bggr16", "bgr16", "rgb16", "rgba16", "mono32",
-                          "32FC1", "16SC1", "8SC1", "64FC1", "nv21", "jpeg", "MONO8", "mono8 ",
-                          "no such encoding"}) {
+  for (const char* enc :
+       {"bayer_rggb8", "bayer_bggr16", "bgr16", "rgb16", "rgba16", "mono32", "32FC1", "16SC1",
+        "8SC1", "64FC1", "nv21", "jpeg", "MONO8", "mono8 ", "no such encoding"}) {
     StereoInput in = goodPair(stamp);
     in.left_encoding = in.right_encoding = enc;
-    expectRefusedThenRecovers(pipeline, in, "unsupported encoding", std::string("encoding '") +
-                                                                        enc + "'");
+    expectRefusedThenRecovers(pipeline, in, "unsupported encoding",
+                              std::string("encoding '") + enc + "'");
     stamp += 0.1;
   }
   // A type that no encoding name maps to, with the encoding left for the pipeline to infer.
@@ -287,12 +286,12 @@ TEST(BadBuffer, TruncatedDataIsRefused) {
   std::vector<uint8_t> data(kWidth * kHeight - 1, 0);  // one byte short of a mono8 image
   cv::Mat out;
   std::string error;
-  EXPECT_FALSE(wrapRawImage(data.data(), data.size(), kWidth, kHeight, kWidth, "mono8", false,
-                            out, &error));
+  EXPECT_FALSE(
+      wrapRawImage(data.data(), data.size(), kWidth, kHeight, kWidth, "mono8", false, out, &error));
   EXPECT_NE(error.find("bytes"), std::string::npos) << error;
   EXPECT_FALSE(wrapRawImage(nullptr, 0, kWidth, kHeight, kWidth, "mono8", false, out, &error));
-  EXPECT_FALSE(wrapRawImage(data.data(), data.size(), 0, kHeight, kWidth, "mono8", false, out,
-                            &error));
+  EXPECT_FALSE(
+      wrapRawImage(data.data(), data.size(), 0, kHeight, kWidth, "mono8", false, out, &error));
 }
 
 TEST(BadBuffer, PaddedStepIsAcceptedAndUnpadded) {
@@ -302,8 +301,8 @@ TEST(BadBuffer, PaddedStepIsAcceptedAndUnpadded) {
   for (int y = 0; y < kHeight; ++y) data[y * step] = static_cast<uint8_t>(y);
   cv::Mat out;
   std::string error;
-  ASSERT_TRUE(wrapRawImage(data.data(), data.size(), kWidth, kHeight, step, "mono8", false, out,
-                           &error))
+  ASSERT_TRUE(
+      wrapRawImage(data.data(), data.size(), kWidth, kHeight, step, "mono8", false, out, &error))
       << error;
   EXPECT_EQ(out.size(), cv::Size(kWidth, kHeight));
   EXPECT_EQ(out.at<uint8_t>(kHeight - 1, 0), kHeight - 1);
@@ -317,8 +316,8 @@ TEST(FuzzRawImage, StepNotAMultipleOfThePixelDepthIsRefused) {
   cv::Mat out;
   std::string error;
   bool ok = true;
-  ASSERT_NO_THROW(ok = wrapRawImage(data.data(), data.size(), 3, 4, 7, "mono16", false, out,
-                                    &error));
+  ASSERT_NO_THROW(
+      ok = wrapRawImage(data.data(), data.size(), 3, 4, 7, "mono16", false, out, &error));
   EXPECT_FALSE(ok);
   EXPECT_NE(error.find("step"), std::string::npos) << error;
 }
@@ -331,12 +330,13 @@ TEST(FuzzRawImage, StepTimesHeightOverflowIsRefused) {
   cv::Mat out;
   std::string error;
   bool ok = true;
-  ASSERT_NO_THROW(ok = wrapRawImage(data.data(), data.size(), 4, 2, huge_step, "mono8", false,
-                                    out, &error));
+  ASSERT_NO_THROW(
+      ok = wrapRawImage(data.data(), data.size(), 4, 2, huge_step, "mono8", false, out, &error));
   EXPECT_FALSE(ok);
 }
 
-// --- Calibration ----------------------------------------------------------------------------------
+// --- Calibration
+// ----------------------------------------------------------------------------------
 
 TEST(BadCalibration, NaNOrZeroEntriesAreRefusedByField) {
   Pipeline pipeline(calibratedParams());
@@ -375,15 +375,15 @@ TEST(BadCalibration, ZeroOrNegativeBaselineIsRefused) {
   Pipeline pipeline(calibratedParams());
   for (const double b : {0.0, -kBaselineM}) {
     std::string error;
-    ASSERT_NO_THROW(error = pipeline.setCalibration(idealCalibration(
-                        cv::Size(kWidth, kHeight), b)));
+    ASSERT_NO_THROW(error =
+                        pipeline.setCalibration(idealCalibration(cv::Size(kWidth, kHeight), b)));
     EXPECT_NE(error.find("baseline"), std::string::npos)
         << "baseline " << b << ": '" << error << "'";
   }
   // A NaN baseline is a NaN in the right projection matrix, and is named as such.
   std::string error;
-  ASSERT_NO_THROW(error = pipeline.setCalibration(idealCalibration(cv::Size(kWidth, kHeight),
-                                                                   kNaN)));
+  ASSERT_NO_THROW(error =
+                      pipeline.setCalibration(idealCalibration(cv::Size(kWidth, kHeight), kNaN)));
   EXPECT_NE(error.find("right.P"), std::string::npos) << error;
   // Without any accepted calibration a calibrated pipeline refuses pairs with a message ...
   PipelineOutput out;
@@ -497,7 +497,8 @@ TEST(FuzzOpenCvStereo, NulByteIsRefusedBeforeTheParser) {
   EXPECT_NE(error.find("NUL byte at offset 50"), std::string::npos) << error;
 }
 
-// --- Time -------------------------------------------------------------------------------------------
+// --- Time
+// -------------------------------------------------------------------------------------------
 
 TEST(BadTime, TimeGoingBackResetsTheTemporalState) {
   Pipeline pipeline(passThroughParams());
@@ -539,7 +540,8 @@ TEST(BadTime, NonFiniteStampsDoNotBreakTheStream) {
   }
 }
 
-// --- Search range and parameters -----------------------------------------------------------------------
+// --- Search range and parameters
+// -----------------------------------------------------------------------
 
 TEST(BadParams, SearchRangeLargerThanTheImageIsHandled) {
   // Defined behaviour: disparities beyond the image width are simply never matched; pixels whose
@@ -570,15 +572,23 @@ TEST(BadParams, InvalidParamsAreRefusedByNameAndTheOldOnesKept) {
     const char* value;
   };
   const Case cases[] = {
-      {"matcher.window_min_px", "4"},    {"matcher.window_min_px", "-1"},
-      {"matcher.window_step_px", "3"},   {"matcher.window_max_px", "1"},
-      {"matcher.max_disparity", "-5"},   {"matcher.delta_min", "3"},
-      {"matcher.epsilon_px", "0"},       {"matcher.gamma_min", "-1"},
-      {"filter.outlier_window_px", "2"}, {"filter.outlier_min_share", "1.5"},
-      {"filter.fill_max_hole_px", "9"},  {"preprocess.downsample", "3"},
-      {"temporal.prior_radius_px", "0"}, {"temporal.max_gap_s", "-1"},
+      {"matcher.window_min_px", "4"},
+      {"matcher.window_min_px", "-1"},
+      {"matcher.window_step_px", "3"},
+      {"matcher.window_max_px", "1"},
+      {"matcher.max_disparity", "-5"},
+      {"matcher.delta_min", "3"},
+      {"matcher.epsilon_px", "0"},
+      {"matcher.gamma_min", "-1"},
+      {"filter.outlier_window_px", "2"},
+      {"filter.outlier_min_share", "1.5"},
+      {"filter.fill_max_hole_px", "9"},
+      {"preprocess.downsample", "3"},
+      {"temporal.prior_radius_px", "0"},
+      {"temporal.max_gap_s", "-1"},
       // Found by fuzzing: oneTBB crashed when the thread count went back down from > 65536.
-      {"matcher.num_threads", "100000"}, {"matcher.num_threads", "-1"},
+      {"matcher.num_threads", "100000"},
+      {"matcher.num_threads", "-1"},
       // Found by fuzzing: min - max overflowed int and the range passed validation.
       {"matcher.min_disparity", "-2147483648"},
   };
@@ -605,10 +615,10 @@ TEST(BadParams, InvalidParamsAreRefusedByNameAndTheOldOnesKept) {
 
 TEST(BadParams, MalformedValuesAreRefusedByTheLoader) {
   PipelineParams p;
-  for (const char* kv : {"matcher.delta_min=nan", "matcher.delta_min=inf", "matcher.window_min_px=7.5",
-                         "matcher.window_min_px=99999999999", "matcher.subpixel=maybe",
-                         "rectify.mode=sideways", "nosuch.key=1", "matcher.window_min_px",
-                         "=3"}) {
+  for (const char* kv :
+       {"matcher.delta_min=nan", "matcher.delta_min=inf", "matcher.window_min_px=7.5",
+        "matcher.window_min_px=99999999999", "matcher.subpixel=maybe", "rectify.mode=sideways",
+        "nosuch.key=1", "matcher.window_min_px", "=3"}) {
     EXPECT_NE(applyParamOverride(p, kv), "") << kv;
   }
   EXPECT_NE(loadPipelineParamsFromString("matcher: [1, 2]", p), "");

@@ -17,7 +17,7 @@
 
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/image_io.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 #include "synthetic_scene.hpp"
 
 namespace {
@@ -339,7 +339,8 @@ TEST_F(CliTest, UncalibratedModeEstimatesTheRectificationOrRefusesClearly) {
   ASSERT_EQ(r.status, 0) << r.err;
   const std::string json = readText(dir_ + "/un.json");
   EXPECT_NE(json.find("\"measured\": true"), std::string::npos) << json;
-  EXPECT_LT(jsonNumber(json, "median_offset_px"), 1.0);  // the warning threshold of issue 3
+  EXPECT_LT(jsonNumber(json, "median_offset_px"),
+            1.0);  // the rectification warning threshold (1 px)
   EXPECT_GT(jsonNumber(json, "density"), 0.2);
 
   cv::imwrite(dir_ + "/flat_l.png", cv::Mat(120, 160, CV_8UC1, cv::Scalar(128)));

@@ -185,7 +185,7 @@ TEST(ParamsIo, MissingFileIsAnError) {
 }
 
 // The shipped presets load with this loader and pass validation; the paper preset holds the
-// paper's values (METHOD.md, "Parameters").
+// paper's values (docs/method.md, "Parameters").
 TEST(ParamsIo, ShippedPresetsLoadAndPaperPresetHoldsThePapersValues) {
   const std::string dir = std::string(ES_SOURCE_DIR) + "/config/";
   for (const char* name : {"default.yaml", "paper.yaml"}) {
@@ -228,7 +228,7 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
     const char* section;
   };
   const Source sources[] = {{"matcher.hpp", "MatcherParams", "matcher"},
-                            {"matcher.hpp", "PostFilterParams", "filter"},
+                            {"post_filter.hpp", "PostFilterParams", "filter"},
                             {"preprocess.hpp", "PreprocessParams", "preprocess"},
                             {"rectification.hpp", "RectifyParams", "rectify"},
                             {"temporal.hpp", "TemporalParams", "temporal"},
@@ -250,7 +250,8 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
     for (auto it = std::sregex_iterator(body.begin(), body.end(), field_re);
          it != std::sregex_iterator(); ++it) {
       const std::string key = std::string(src.section) + "." + (*it)[1].str();
-      EXPECT_EQ(keys.count(key), 1u) << key << " (" << src.strukt << ") has no key in params_io.cpp";
+      EXPECT_EQ(keys.count(key), 1u)
+          << key << " (" << src.strukt << ") has no key in params_io.cpp";
       ++found;
     }
     EXPECT_GT(found, 0) << src.strukt;

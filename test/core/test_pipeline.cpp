@@ -1,5 +1,5 @@
 // The Pipeline's plumbing: stages in order, errors reported without throwing, temporal state
-// reset on the events METHOD.md section 4 names, optional outputs, geometry from calibration.
+// reset on the events docs/method.md section 4 names, optional outputs, geometry from calibration.
 #include <gtest/gtest.h>
 
 #include <cmath>
@@ -10,7 +10,7 @@
 #include <string>
 
 #include "endo_stereo/core/pipeline.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 #include "synthetic_scene.hpp"
 
 namespace {

@@ -1,12 +1,12 @@
-// Isolated-outlier removal and small-hole filling (METHOD.md section 3) on hand-made maps.
+// Isolated-outlier removal and small-hole filling (docs/method.md section 3) on hand-made maps.
 #include <gtest/gtest.h>
 
-#include <cmath>
-#include <opencv2/core/utility.hpp>
-#include <vector>
 #include <algorithm>
+#include <cmath>
 #include <limits>
 #include <opencv2/core.hpp>
+#include <opencv2/core/utility.hpp>
+#include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
 
@@ -40,7 +40,7 @@ TEST(IsolatedOutliers, RemovesAPixelDifferingFromAUniformField) {
   d.at<float>(4, 4) = 30.f;
   cv::Mat code;
   // The centre goes, and so do the four image corners: the denominator is always window^2
-  // (METHOD.md), and a corner sees only 3 x 3 - 1 = 8 neighbours, fewer than 0.4 * 25 = 10.
+  // (docs/method.md), and a corner sees only 3 x 3 - 1 = 8 neighbours, fewer than 0.4 * 25 = 10.
   EXPECT_EQ(removeIsolatedOutliers(d, code, paperFilter()), 5);
   EXPECT_TRUE(std::isnan(d.at<float>(4, 4)));
   EXPECT_TRUE(std::isnan(d.at<float>(0, 0)));
@@ -98,7 +98,7 @@ TEST(IsolatedOutliers, DecidesFromTheInputMapNotFromEarlierRemovals) {
   EXPECT_TRUE(std::isnan(d.at<float>(5, 3)));
 }
 
-// METHOD.md's rule written out plainly: a measured pixel goes when fewer than
+// docs/method.md's rule written out plainly: a measured pixel goes when fewer than
 // outlier_min_share * window^2 of its in-image neighbours (itself excluded) lie within the
 // tolerance of it.
 cv::Mat referenceRemoval(const cv::Mat& d, const PostFilterParams& p) {
@@ -167,8 +167,8 @@ TEST(IsolatedOutliers, MatchesThePlainRuleOnRandomMaps) {
   EXPECT_EQ(cases, 27);
 }
 
-// METHOD.md's hole rule written out plainly: an invalid pixel inside a horizontal or vertical run
-// of at most max_hole invalid pixels with a valid pixel at both ends takes the lower median of
+// docs/method.md's hole rule written out plainly: an invalid pixel inside a horizontal or vertical
+// run of at most max_hole invalid pixels with a valid pixel at both ends takes the lower median of
 // its valid 8-neighbours in the input map.
 cv::Mat referenceFill(const cv::Mat& d, int max_hole) {
   auto invalid = [&](int y, int x) { return std::isnan(d.at<float>(y, x)); };

@@ -216,7 +216,7 @@ TEST_P(CalibratedRigTest, AlignsRowsAndRecoversDepth) {
   ASSERT_GE(n_measured, 30);
   // Exact mapping: numerical noise only.
   EXPECT_LT(max_dy_exact, 1e-3);
-  // Issue 3: rows align within 0.1 px and depth within 0.5%, measured on dot centroids in the
+  // Requirement: rows align within 0.1 px and depth within 0.5%, measured on dot centroids in the
   // remapped images (centroid bias of a 1.5 px Gaussian after bilinear remap is a few 0.01 px).
   EXPECT_LT(max_dy, 0.1);
   EXPECT_LT(max_dz, 0.005);
@@ -297,7 +297,8 @@ TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
     for (const auto& r : {std::make_pair(0, 24), std::make_pair(0, 31), std::make_pair(0, 39),
                           std::make_pair(0, 47), std::make_pair(0, 60), std::make_pair(0, 95),
                           std::make_pair(17, 23)}) {
-      const RectificationQuality qr = measureRowAlignmentPatches(left, right, r.first, r.second, 300);
+      const RectificationQuality qr =
+          measureRowAlignmentPatches(left, right, r.first, r.second, 300);
       ASSERT_TRUE(qr.valid) << r.first << ".." << r.second << ": " << qr.message;
       EXPECT_GE(qr.num_matches, 100) << r.first << ".." << r.second;
       EXPECT_NEAR(qr.median_offset_px, dy, 0.15) << r.first << ".." << r.second;
@@ -493,7 +494,7 @@ TEST_F(RectifyTest, HamlynPhantomRectifiesToExpectedDisparities) {
       "(density %.1f%%)\n",
       q.median_offset_px, q.p90_offset_px, q.num_matches, values[values.size() / 2], 100 * share,
       valid, 100.0 * valid / in_mask);
-  // Issue 3: vertical offset under 1 px and disparities in the mask in 30-45 px. "Lie in" is
+  // Requirement: vertical offset under 1 px and disparities in the mask in 30-45 px. "Lie in" is
   // checked as 95% of the accepted pixels (the matcher keeps a few wrong matches on specular
   // highlights) with the median inside the range.
   EXPECT_LT(q.median_offset_px, 1.0);

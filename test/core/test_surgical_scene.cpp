@@ -1,13 +1,14 @@
-// Tests of the synthetic surgical stereo generator (test/test_utils/surgical_scene.hpp): exact
-// ground truth, determinism, calibration, masks, degradations.
-#include <cmath>
-
+// Tests of the synthetic surgical stereo generator
+// (include/endo_stereo/synthetic/surgical_scene.hpp): exact ground truth, determinism, calibration,
+// masks, degradations.
 #include <gtest/gtest.h>
+
+#include <cmath>
 #include <opencv2/calib3d.hpp>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
 
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 namespace endo_stereo {
 namespace {
@@ -79,7 +80,8 @@ TEST(SurgicalScene, DistortedGroundTruthMatchesRectifiedViews) {
     cv::Mat m1, m2;
     cv::initUndistortRectifyMap(cv::Mat(cc.K), cc.D, cv::Mat(cc.R), cv::Mat(cc.P).colRange(0, 3),
                                 cv::Size(cc.width, cc.height), CV_32FC1, m1, m2);
-    cv::remap(k == 0 ? raw.left : raw.right, k == 0 ? rect.left : rect.right, m1, m2, cv::INTER_CUBIC);
+    cv::remap(k == 0 ? raw.left : raw.right, k == 0 ? rect.left : rect.right, m1, m2,
+              cv::INTER_CUBIC);
     cv::Mat& spec = k == 0 ? rect.left_specular : rect.right_specular;
     cv::remap(k == 0 ? raw.left_specular : raw.right_specular, spec, m1, m2, cv::INTER_NEAREST);
     cv::dilate(spec, spec, cv::Mat());
@@ -220,7 +222,8 @@ TEST(SurgicalScene, HighlightsDifferBetweenViews) {
   int unmatched = 0;
   for (int y = 0; y < frame.left.rows; ++y) {
     for (int x = 0; x < frame.left.cols; ++x) {
-      if (!frame.left_specular.at<uint8_t>(y, x) || frame.visibility.at<uint8_t>(y, x) != kVisibleBoth)
+      if (!frame.left_specular.at<uint8_t>(y, x) ||
+          frame.visibility.at<uint8_t>(y, x) != kVisibleBoth)
         continue;
       const int xr = int(std::lround(x - frame.gt_disparity.at<float>(y, x)));
       unmatched += frame.right_specular.at<uint8_t>(y, xr) == 0;
@@ -242,7 +245,7 @@ TEST(SurgicalScene, InterlacedOddRowsAreHalfAFrameLater) {
   p.interlaced = false;
   SurgicalScene(p).render(4, even);  // t = 4 / 25
   p.fps = 50.0;
-  SurgicalScene(p).render(9, odd);   // t = 9 / 50 = (4 + 0.5) / 25
+  SurgicalScene(p).render(9, odd);  // t = 9 / 50 = (4 + 0.5) / 25
   for (int y = 0; y < inter.left.rows; ++y) {
     const SurgicalFrame& ref = y % 2 == 0 ? even : odd;
     ASSERT_TRUE(identical(inter.left.row(y), ref.left.row(y))) << "row " << y;

@@ -1,16 +1,16 @@
 // Tests of the temporal stage (temporal.hpp): priors, resets, fusion, coverage; on hand-made
 // sequences with known answers and on the synthetic surgical sequence.
+#include <gtest/gtest.h>
+
 #include <cmath>
 #include <limits>
-#include <vector>
-
-#include <gtest/gtest.h>
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
+#include <vector>
 
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/temporal.hpp"
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 namespace endo_stereo {
 namespace {
@@ -169,9 +169,9 @@ TEST(TemporalPrior, ForgetsPriorsOlderThanMaxAge) {
   prior.buildRange(size, 0, 63, range);
   prior.update(constantDisparity(size, 30.0f));        // age 0
   EXPECT_TRUE(prior.buildRange(size, 0, 63, range));   // measured 1 frame ago
-  prior.update(constantDisparity(size, kNaN));          // age 1
+  prior.update(constantDisparity(size, kNaN));         // age 1
   EXPECT_TRUE(prior.buildRange(size, 0, 63, range));   // 2 frames ago: still a prior
-  prior.update(constantDisparity(size, kNaN));          // age 2
+  prior.update(constantDisparity(size, kNaN));         // age 2
   EXPECT_FALSE(prior.buildRange(size, 0, 63, range));  // 3 frames ago: gone
   EXPECT_EQ(prior.stats().full_range_pixels, 256);
 }
@@ -197,7 +197,8 @@ TEST(TemporalPrior, RefreshStripesTakeTurnsAtTheFullRange) {
     }
     prior.update(constantDisparity(size, 30.0f));
   }
-  for (int s = 0; s < 4; ++s) EXPECT_EQ(refreshed[s], 1) << "stripe " << s;  // each once in 4 frames
+  for (int s = 0; s < 4; ++s)
+    EXPECT_EQ(refreshed[s], 1) << "stripe " << s;  // each once in 4 frames
   // A refreshed pixel whose full search finds nothing loses its prior: the stripe's rows further
   // than the neighbourhood from the other stripes search the full range next frame.
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
@@ -670,7 +671,8 @@ TEST(TemporalPrior, RangesShrinkAndHoldTheNextFrameOnAMovingSequence) {
     for (int y = 0; y < d.rows; ++y)
       for (int x = 0; x < d.cols; ++x) {
         const float v = d.at<float>(y, x);
-        if (!(v >= range.lo.at<int16_t>(y, x) && v <= range.hi.at<int16_t>(y, x))) d.at<float>(y, x) = kNaN;
+        if (!(v >= range.lo.at<int16_t>(y, x) && v <= range.hi.at<int16_t>(y, x)))
+          d.at<float>(y, x) = kNaN;
       }
     prior.update(d);
   }

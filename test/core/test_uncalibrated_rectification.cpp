@@ -140,7 +140,7 @@ TEST_P(UncalibratedRigTest, AlignsRowsWithoutCalibration) {
       uc.rig, toString(uc.method).c_str(), rect.activeMethod().c_str(), gt.median, gt.p90, gt.n,
       q.median_offset_px, q.p90_offset_px, q.num_matches, lg.cols, lg.rows, gt.d_min, gt.d_max);
   ASSERT_GT(gt.n, 300);
-  // Issue 3: median vertical offset after uncalibrated rectification under 0.5 px.
+  // Requirement: median vertical offset after uncalibrated rectification under 0.5 px.
   EXPECT_LT(gt.median, 0.5);
   EXPECT_TRUE(q.valid);
   EXPECT_TRUE(q.estimated);

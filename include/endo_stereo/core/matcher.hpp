@@ -6,8 +6,8 @@
  * three confidence criteria: structure (stdev of the Laplacian, gamma), discrimination (gap between
  * the two highest NCC peaks, delta) and left-right consistency (epsilon). Sub-pixel refinement by a
  * parabola through the best peak (ours). Post-processing (isolated-outlier removal, 1-2 px hole
- * filling) is configured by PostFilterParams and run by the matcher after matching.
- * See ../shared/METHOD.md sections 2 and 3.
+ * filling) is configured by PostFilterParams (post_filter.hpp) and run by the matcher after
+ * matching. The method, step by step, with the function implementing each: docs/method.md.
  *
  * Ours, in the default preset (the paper preset, config/paper.yaml, switches them off): a test
  * against fattening at depth edges (a pixel whose accepting window straddles a disparity jump is
@@ -38,6 +38,8 @@
 #include <cstdint>
 #include <opencv2/core.hpp>
 #include <string>
+
+#include "endo_stereo/core/post_filter.hpp"
 
 namespace endo_stereo {
 
@@ -111,25 +113,6 @@ struct MatcherParams {
   int edge_verify_radius_px = 4;
   /// Least ZNCC of the pixel's own disparity in each verifying window, [-1, 1].
   double edge_verify_min_ncc = 0.5;
-
-  /// @return an empty string when valid, otherwise a message naming the bad field and its range.
-  std::string validate() const;
-};
-
-/// Parameters of the post-processing stage (METHOD.md section 3).
-struct PostFilterParams {
-  /// Remove isolated outliers.
-  bool remove_outliers = true;
-  /// Neighbourhood width for the outlier test (paper: Delta w = 5), odd, >= 3.
-  int outlier_window_px = 5;
-  /// Neighbours agree when their disparity differs by less than this (paper: Delta d = 4), px, > 0.
-  double outlier_disparity_tol_px = 4.0;
-  /// Remove a pixel when agreeing neighbours / window^2 < this (paper: mu = 0.4), [0, 1].
-  double outlier_min_share = 0.4;
-  /// Fill holes up to fill_max_hole_px wide with the median of surrounding valid disparities.
-  bool fill_holes = true;
-  /// Widest hole filled, px, in [1, 2] (METHOD.md: nothing larger is filled).
-  int fill_max_hole_px = 2;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;
@@ -220,15 +203,5 @@ class RobustMatcher {
   PostFilterParams filter_params_;
   Impl* impl_;
 };
-
-/// Isolated-outlier removal (METHOD.md section 3) in place on a CV_32FC1 disparity (NaN invalid);
-/// marks removed pixels kCodeRejectOutlier in @p code (CV_8UC1) when not empty.
-/// @return the number of pixels removed.
-int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
-
-/// Fill holes at most params.fill_max_hole_px wide (horizontally or vertically) with the median of
-/// the surrounding valid disparities; marks them kCodeFilled in @p code when not empty.
-/// @return the number of pixels filled.
-int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
 
 }  // namespace endo_stereo

@@ -1,6 +1,6 @@
 /**
  * @file preprocess.hpp
- * @brief Pre-processing of raw frames (METHOD.md section 1): encoding conversion to gray (luma
+ * @brief Pre-processing of raw frames (docs/method.md section 1): encoding conversion to gray (luma
  * BT.601, or the Y channel of YUV) and BGR colour, interlace handling and downsampling, with the
  * calibration scaled consistently (the sensor_msgs/CameraInfo binning and ROI semantics).
  *

@@ -1,6 +1,6 @@
 /**
  * @file rectification.hpp
- * @brief Stereo rectification in three modes (METHOD.md section 1) and its quality figure.
+ * @brief Stereo rectification in three modes (docs/method.md section 1) and its quality figure.
  *
  * 1. Calibrated: undistort-rectify maps from two CameraInfo-model calibrations (K, D, R, P with
  *    binning and ROI), built once and cached until the calibration or the image size changes.
@@ -306,8 +306,8 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
  * inside one). The rectifier measures with this in every mode, except while uncalibrated mode
  * pools SIFT matches for an estimate (it then uses those matches).
  */
-RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray,
-                                                const cv::Mat& right_gray, int min_disparity,
-                                                int max_disparity, int max_patches);
+RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
+                                                int min_disparity, int max_disparity,
+                                                int max_patches);
 
 }  // namespace endo_stereo

@@ -1,6 +1,6 @@
 /**
  * @file temporal.hpp
- * @brief Temporal smoothness over video (METHOD.md section 4): search-range priors from the
+ * @brief Temporal smoothness over video (docs/method.md section 4): search-range priors from the
  * previous frames, temporal fusion of recent valid disparities, and coverage over time (the
  * paper's Fig. 6: per pixel the longest run of frames without an update).
  *
@@ -41,10 +41,9 @@
 
 #include <cstdint>
 #include <limits>
+#include <opencv2/core.hpp>
 #include <string>
 #include <vector>
-
-#include <opencv2/core.hpp>
 
 #include "endo_stereo/core/matcher.hpp"
 
@@ -55,7 +54,7 @@ struct TemporalParams {
   /// Use temporal search-range priors. Fusion and coverage are requested separately (they run
   /// whether or not priors are used, so "--no-priors" runs can be compared on coverage too).
   bool enabled = true;
-  /// Half-width of the narrowed search around a prior, px (issue 2: +-4). In [1, 64].
+  /// Half-width of the narrowed search around a prior, px (+-4 by default). In [1, 64].
   int prior_radius_px = 4;
   /// The narrowed range of a pixel spans the priors found within this many pixels of it
   /// (a (2k+1)^2 neighbourhood), so small image motion and newly uncovered neighbours of valid
@@ -96,11 +95,11 @@ struct TemporalParams {
   /// turn; elsewhere such pixels are not searched (matcher code "unsearched"), keep whatever prior
   /// they had (it ages) and count no failure. With the highlight rule on, pixels near a highlight
   /// that have a prior are never deferred (they search the full range every frame). 1 = every frame
-  /// (METHOD.md section 4 to the letter). Most pixels without a prior fail again (the textureless
-  /// instrument, the band at the left border, wet highlights), and a failure at the full range
-  /// runs every window size: on the surgical sequence 4 cuts 22% of the matcher's instructions per
-  /// frame with priors, for -0.26 points of density and 97.9% instead of 98.2% of central pixels
-  /// updated within 10 frames (docs/temporal_results.md). In [1, 1000].
+  /// (docs/method.md section 4 to the letter). Most pixels without a prior fail again (the
+  /// textureless instrument, the band at the left border, wet highlights), and a failure at the
+  /// full range runs every window size: on the surgical sequence 4 cuts 22% of the matcher's
+  /// instructions per frame with priors, for -0.26 points of density and 97.9% instead of 98.2% of
+  /// central pixels updated within 10 frames (docs/temporal_results.md). In [1, 1000].
   int full_range_period_frames = 4;
   /// Scene change: when fewer than this share of the narrowed searches of a frame find a valid
   /// disparity (normally ~95%), the priors are dropped at once (a cut, a jump of the endoscope):
@@ -128,10 +127,10 @@ constexpr int kRefreshStripeRows = 8;
 
 /// What identifies a continuous stream for the temporal state.
 struct TemporalFrameInfo {
-  cv::Size size;                      ///< size of the (rectified) images matched
-  double stamp_s = 0.0;               ///< capture time, s; NaN = unknown (time checks skipped)
+  cv::Size size;                        ///< size of the (rectified) images matched
+  double stamp_s = 0.0;                 ///< capture time, s; NaN = unknown (time checks skipped)
   uint64_t calibration_generation = 0;  ///< bump whenever the calibration changes
-  int min_disparity = 0;              ///< matcher's full range, px, inclusive
+  int min_disparity = 0;                ///< matcher's full range, px, inclusive
   int max_disparity = 63;
   /// The rectified left image (CV_8UC1) for the highlight rule (TemporalParams::highlight_gray);
   /// empty = the rule is off for this frame. Not kept after beginFrame().
@@ -178,7 +177,7 @@ struct TemporalPriorStats {
 };
 
 /**
- * Search-range priors from the previous frames' valid disparities (METHOD.md section 4).
+ * Search-range priors from the previous frames' valid disparities (docs/method.md section 4).
  *
  * Per pixel it keeps the most recent valid disparity, its age in frames and a count of
  * consecutive failed narrowed searches. buildRange() gives pixel p the range
@@ -239,15 +238,15 @@ class TemporalPrior {
   TemporalParams params_;
   cv::Size size_;
   int min_disparity_ = 0, max_disparity_ = -1;
-  cv::Mat last_disparity_;  // CV_32FC1
-  cv::Mat age_;             // CV_16UC1
-  cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
-  cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed, 2 deferred
-  int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
-  cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
-  cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
-  cv::Mat bright_;          // scratch: near-highlight pixels
-  std::vector<uint8_t> zero_row_;           // scratch: "no highlight" row when none are given
+  cv::Mat last_disparity_;         // CV_32FC1
+  cv::Mat age_;                    // CV_16UC1
+  cv::Mat failures_;               // CV_8UC1 consecutive failed narrowed searches
+  cv::Mat narrowed_;               // CV_8UC1 1 where the last built range was narrowed, 2 deferred
+  int64_t frame_count_ = 0;        // update() calls since the last reset (selects refresh stripes)
+  cv::Mat lo_f_, hi_f_;            // scratch: priors spread over the neighbourhood
+  cv::Mat lo_e_, hi_e_;            // scratch: priors spread over the edge zone
+  cv::Mat bright_;                 // scratch: near-highlight pixels
+  std::vector<uint8_t> zero_row_;  // scratch: "no highlight" row when none are given
   TemporalPriorStats stats_;
 };
 
@@ -279,13 +278,13 @@ class TemporalFusion {
 
 /// Figures of a CoverageTracker.
 struct CoverageStats {
-  int frames = 0;                ///< frames folded in
-  int within_frames = 10;        ///< the N of "updated within N frames"
-  double central_share = 0.0;    ///< central-region pixels updated at least once, longest run < N
-  double overall_share = 0.0;    ///< all pixels updated at least once with longest run < N
-  double central_never = 0.0;    ///< central-region pixels never updated, [0, 1]
-  double overall_never = 0.0;    ///< all pixels never updated, [0, 1]
-  cv::Rect central_region;       ///< the middle half of the image by area
+  int frames = 0;              ///< frames folded in
+  int within_frames = 10;      ///< the N of "updated within N frames"
+  double central_share = 0.0;  ///< central-region pixels updated at least once, longest run < N
+  double overall_share = 0.0;  ///< all pixels updated at least once with longest run < N
+  double central_never = 0.0;  ///< central-region pixels never updated, [0, 1]
+  double overall_never = 0.0;  ///< all pixels never updated, [0, 1]
+  cv::Rect central_region;     ///< the middle half of the image by area
 };
 
 /**

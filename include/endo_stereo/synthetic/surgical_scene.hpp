@@ -1,6 +1,7 @@
 /**
  * @file surgical_scene.hpp
- * @brief Synthetic surgical stereo video with exact ground truth (issue 4, item 1).
+ * @brief Synthetic surgical stereo video with exact ground truth (the temporal benchmark's and the
+ * generator's input).
  *
  * A calibrated stereo endoscope looks at a smooth, deforming tissue surface (breathing, heartbeat,
  * a slow peristaltic wave) with a procedural tissue texture (vessels, mottling, colour variation,
@@ -39,9 +40,8 @@
 
 #include <cstdint>
 #include <memory>
-#include <string>
-
 #include <opencv2/core.hpp>
+#include <string>
 
 #include "endo_stereo/core/stereo_geometry.hpp"
 
@@ -50,37 +50,37 @@ namespace endo_stereo {
 /// Parameters of the synthetic surgical scene. Lengths in metres, times in seconds, intensities
 /// on the 0..255 scale.
 struct SurgicalSceneParams {
-  int width = 960;                 ///< image width, px, >= 32
-  int height = 540;                ///< image height, px, >= 32
-  uint64_t seed = 1;               ///< everything random derives from it
-  double fps = 25.0;               ///< frame rate, > 0; frame i is at time i / fps
+  int width = 960;    ///< image width, px, >= 32
+  int height = 540;   ///< image height, px, >= 32
+  uint64_t seed = 1;  ///< everything random derives from it
+  double fps = 25.0;  ///< frame rate, > 0; frame i is at time i / fps
   // Rig.
-  double hfov_deg = 70.0;          ///< horizontal field of view, (10, 150)
-  double baseline_m = 0.0045;      ///< distance between the optical centres, > 0
-  bool distorted = false;          ///< plumb_bob lenses and rotated cameras (raw != rectified)
+  double hfov_deg = 70.0;      ///< horizontal field of view, (10, 150)
+  double baseline_m = 0.0045;  ///< distance between the optical centres, > 0
+  bool distorted = false;      ///< plumb_bob lenses and rotated cameras (raw != rectified)
   // Tissue.
-  double tissue_distance_m = 0.08; ///< mean depth of the tissue, > 0
-  double tissue_relief_m = 0.008;  ///< amplitude of the smooth relief (bumps, folds), >= 0
-  double breathing_amplitude_m = 0.002;  ///< depth swing of breathing, >= 0
-  double breathing_period_s = 4.0;       ///< > 0
-  double heartbeat_amplitude_m = 0.0006; ///< local pulsation, >= 0
-  double heartbeat_period_s = 0.85;      ///< > 0
-  double tissue_stretch_m = 0.0008;      ///< lateral tissue motion with breathing, >= 0
-  double camera_motion_m = 0.002;        ///< slow drift of the endoscope, >= 0
-  double camera_motion_period_s = 7.0;   ///< > 0
-  double vessel_density = 1.0;     ///< vessels per unit, [0, 10]
-  double texture_contrast = 1.0;   ///< multiplies the mottling amplitude, [0, 5]
-  double specular_strength = 1.0;  ///< tissue highlight strength, [0, 10] (0 = matte)
+  double tissue_distance_m = 0.08;        ///< mean depth of the tissue, > 0
+  double tissue_relief_m = 0.008;         ///< amplitude of the smooth relief (bumps, folds), >= 0
+  double breathing_amplitude_m = 0.002;   ///< depth swing of breathing, >= 0
+  double breathing_period_s = 4.0;        ///< > 0
+  double heartbeat_amplitude_m = 0.0006;  ///< local pulsation, >= 0
+  double heartbeat_period_s = 0.85;       ///< > 0
+  double tissue_stretch_m = 0.0008;       ///< lateral tissue motion with breathing, >= 0
+  double camera_motion_m = 0.002;         ///< slow drift of the endoscope, >= 0
+  double camera_motion_period_s = 7.0;    ///< > 0
+  double vessel_density = 1.0;            ///< vessels per unit, [0, 10]
+  double texture_contrast = 1.0;          ///< multiplies the mottling amplitude, [0, 5]
+  double specular_strength = 1.0;         ///< tissue highlight strength, [0, 10] (0 = matte)
   // Instrument.
-  int instruments = 1;             ///< number of instruments, 0..2
+  int instruments = 1;                  ///< number of instruments, 0..2
   double instrument_radius_m = 0.0025;  ///< shaft radius, > 0
-  double instrument_speed = 1.0;   ///< multiplies the instrument's motion speed, [0, 20]
-  double instrument_texture = 0.3; ///< brushed-metal texture amplitude, [0, 1] (0 = textureless)
+  double instrument_speed = 1.0;        ///< multiplies the instrument's motion speed, [0, 20]
+  double instrument_texture = 0.3;  ///< brushed-metal texture amplitude, [0, 1] (0 = textureless)
   // Degradations.
-  double noise_sigma = 1.5;        ///< Gaussian sensor noise, grey levels, >= 0
-  int motion_blur_samples = 1;     ///< sub-frame renders averaged (1 = no blur), 1..16
-  double exposure_s = 0.02;        ///< exposure time spanned by the blur samples, >= 0
-  bool interlaced = false;         ///< odd rows are a second field, captured 0.5 / fps later
+  double noise_sigma = 1.5;     ///< Gaussian sensor noise, grey levels, >= 0
+  int motion_blur_samples = 1;  ///< sub-frame renders averaged (1 = no blur), 1..16
+  double exposure_s = 0.02;     ///< exposure time spanned by the blur samples, >= 0
+  bool interlaced = false;      ///< odd rows are a second field, captured 0.5 / fps later
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;

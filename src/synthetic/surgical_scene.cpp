@@ -4,17 +4,16 @@
 // optical frame; the rig (both cameras) only translates over time. The tissue is a height field
 // Z = h(X, Y, t); instruments are capsules. Every pixel of each view is a ray C + s * dir, where
 // dir comes from a per-pixel table built once (so a distorted lens costs nothing per frame).
-#include "surgical_scene.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <opencv2/calib3d.hpp>
+#include <opencv2/imgproc.hpp>
 #include <sstream>
 #include <stdexcept>
 #include <vector>
-
-#include <opencv2/calib3d.hpp>
-#include <opencv2/imgproc.hpp>
 
 namespace endo_stereo {
 
@@ -150,10 +149,15 @@ inline void fastSinCos(double x, double* sn, double* cs) {
   const double q = double(int64_t(t + (t >= 0 ? 0.5 : -0.5)));  // round, inline (no libm call)
   const double r = (x - q * 1.57079632679489655800e+00) - q * 6.12323399573676603587e-17;
   const double r2 = r * r;
-  const double s = r * (1 + r2 * (-1.0 / 6 + r2 * (1.0 / 120 + r2 * (-1.0 / 5040 + r2 * (1.0 / 362880 +
-                   r2 * (-1.0 / 39916800))))));
-  const double c = 1 + r2 * (-0.5 + r2 * (1.0 / 24 + r2 * (-1.0 / 720 + r2 * (1.0 / 40320 +
-                   r2 * (-1.0 / 3628800 + r2 * (1.0 / 479001600.0))))));
+  const double s =
+      r * (1 + r2 * (-1.0 / 6 +
+                     r2 * (1.0 / 120 +
+                           r2 * (-1.0 / 5040 + r2 * (1.0 / 362880 + r2 * (-1.0 / 39916800))))));
+  const double c =
+      1 +
+      r2 * (-0.5 + r2 * (1.0 / 24 +
+                         r2 * (-1.0 / 720 + r2 * (1.0 / 40320 + r2 * (-1.0 / 3628800 +
+                                                                      r2 * (1.0 / 479001600.0))))));
   const int64_t quadrant = int64_t(q) & 3;
   const bool swap = quadrant & 1;
   const double ss = swap ? c : s, cc = swap ? s : c;
@@ -174,21 +178,27 @@ std::string SurgicalSceneParams::validate() const {
   if (!(fps > 0)) return fieldError("fps", "(0, inf)", fps);
   if (!(hfov_deg > 10 && hfov_deg < 150)) return fieldError("hfov_deg", "(10, 150)", hfov_deg);
   if (!(baseline_m > 0)) return fieldError("baseline_m", "(0, inf)", baseline_m);
-  if (!(tissue_distance_m > 0)) return fieldError("tissue_distance_m", "(0, inf)", tissue_distance_m);
+  if (!(tissue_distance_m > 0))
+    return fieldError("tissue_distance_m", "(0, inf)", tissue_distance_m);
   if (!(tissue_relief_m >= 0 && tissue_relief_m < 0.25 * tissue_distance_m))
     return fieldError("tissue_relief_m", "[0, tissue_distance_m / 4)", tissue_relief_m);
   if (!(breathing_amplitude_m >= 0 && breathing_amplitude_m < 0.1 * tissue_distance_m))
-    return fieldError("breathing_amplitude_m", "[0, tissue_distance_m / 10)", breathing_amplitude_m);
-  if (!(breathing_period_s > 0)) return fieldError("breathing_period_s", "(0, inf)", breathing_period_s);
+    return fieldError("breathing_amplitude_m", "[0, tissue_distance_m / 10)",
+                      breathing_amplitude_m);
+  if (!(breathing_period_s > 0))
+    return fieldError("breathing_period_s", "(0, inf)", breathing_period_s);
   if (!(heartbeat_amplitude_m >= 0 && heartbeat_amplitude_m < 0.05 * tissue_distance_m))
-    return fieldError("heartbeat_amplitude_m", "[0, tissue_distance_m / 20)", heartbeat_amplitude_m);
-  if (!(heartbeat_period_s > 0)) return fieldError("heartbeat_period_s", "(0, inf)", heartbeat_period_s);
+    return fieldError("heartbeat_amplitude_m", "[0, tissue_distance_m / 20)",
+                      heartbeat_amplitude_m);
+  if (!(heartbeat_period_s > 0))
+    return fieldError("heartbeat_period_s", "(0, inf)", heartbeat_period_s);
   if (!(tissue_stretch_m >= 0)) return fieldError("tissue_stretch_m", "[0, inf)", tissue_stretch_m);
   if (!(camera_motion_m >= 0 && camera_motion_m < 0.2 * tissue_distance_m))
     return fieldError("camera_motion_m", "[0, tissue_distance_m / 5)", camera_motion_m);
   if (!(camera_motion_period_s > 0))
     return fieldError("camera_motion_period_s", "(0, inf)", camera_motion_period_s);
-  if (!(vessel_density >= 0 && vessel_density <= 10)) return fieldError("vessel_density", "[0, 10]", vessel_density);
+  if (!(vessel_density >= 0 && vessel_density <= 10))
+    return fieldError("vessel_density", "[0, 10]", vessel_density);
   if (!(texture_contrast >= 0 && texture_contrast <= 5))
     return fieldError("texture_contrast", "[0, 5]", texture_contrast);
   if (!(specular_strength >= 0 && specular_strength <= 10))
@@ -200,7 +210,8 @@ std::string SurgicalSceneParams::validate() const {
     return fieldError("instrument_speed", "[0, 20]", instrument_speed);
   if (!(instrument_texture >= 0 && instrument_texture <= 1))
     return fieldError("instrument_texture", "[0, 1]", instrument_texture);
-  if (!(noise_sigma >= 0 && noise_sigma <= 100)) return fieldError("noise_sigma", "[0, 100]", noise_sigma);
+  if (!(noise_sigma >= 0 && noise_sigma <= 100))
+    return fieldError("noise_sigma", "[0, 100]", noise_sigma);
   if (motion_blur_samples < 1 || motion_blur_samples > 16)
     return fieldError("motion_blur_samples", "[1, 16]", motion_blur_samples);
   if (!(exposure_s >= 0 && exposure_s <= 1)) return fieldError("exposure_s", "[0, 1]", exposure_s);
@@ -211,14 +222,14 @@ std::string SurgicalSceneParams::validate() const {
 struct SurgicalScene::Impl {
   SurgicalSceneParams p;
   int W = 0, H = 0;
-  double f = 0;                       // nominal focal length, px
-  RawCamera cam[2];                   // raw left / right
+  double f = 0;      // nominal focal length, px
+  RawCamera cam[2];  // raw left / right
   // Rectified left (ground-truth) rays and axis, in the rig frame.
   std::vector<cv::Vec3d> gt_dirs;
-  cv::Vec3d gt_axis;                  // unit optical axis of the rectified left camera
+  cv::Vec3d gt_axis;  // unit optical axis of the rectified left camera
   double f_rect = 0, baseline = 0, doffs = 0;
   cv::Matx33d R1 = cv::Matx33d::eye(), R2 = cv::Matx33d::eye();  // camera -> rectified
-  cv::Matx34d P1, P2;                                              // rectified projections
+  cv::Matx34d P1, P2;                                            // rectified projections
   // Tissue.
   double gx = 0, gy = 0;
   std::vector<Bump> bumps;
@@ -228,15 +239,15 @@ struct SurgicalScene::Impl {
   double stretch_kx = 0, stretch_ky = 0, stretch_phase[2] = {0, 0};
   // Texture atlas over material coordinates (X, Y), texel size tau metres.
   double tau = 0, atlas_x0 = 0, atlas_y0 = 0;
-  cv::Mat albedo;      // CV_32FC3, linear RGB stored as B, G, R
-  cv::Mat bump_grad;   // CV_32FC2, slope of the micro relief (shading only)
+  cv::Mat albedo;     // CV_32FC3, linear RGB stored as B, G, R
+  cv::Mat bump_grad;  // CV_32FC2, slope of the micro relief (shading only)
   // Instruments.
   struct InstrumentPath {
     cv::Vec3d entry, tip_centre, tip_amp;
     double omega[3], phase[3];
   };
   std::vector<InstrumentPath> paths;
-  cv::Mat metal;       // CV_32FC1 brushed-metal table: rows = axial cells, cols = angle cells
+  cv::Mat metal;  // CV_32FC1 brushed-metal table: rows = axial cells, cols = angle cells
   double metal_axial_cell = 0.0005;
   // Gamma lookup for linear [0, 1] -> 0..255.
   std::vector<float> gamma_lut;
@@ -259,8 +270,8 @@ struct SurgicalScene::Impl {
     double ph = std::fmod(t / p.heartbeat_period_s, 1.0);
     if (ph < 0) ph += 1.0;
     // Systolic peak then a smaller dicrotic one.
-    s.heart = p.heartbeat_amplitude_m *
-              (std::exp(-std::pow((ph - 0.15) / 0.07, 2)) + 0.45 * std::exp(-std::pow((ph - 0.42) / 0.08, 2)));
+    s.heart = p.heartbeat_amplitude_m * (std::exp(-std::pow((ph - 0.15) / 0.07, 2)) +
+                                         0.45 * std::exp(-std::pow((ph - 0.42) / 0.08, 2)));
     for (int i = 0; i < 2; ++i) s.wave_shift[i] = waves[i].omega * t;
     // The light sits at the tip between the two lenses, a little below them.
     s.light = s.rig + cv::Vec3d(0.5 * p.baseline_m, 0.0012, 0.0);
@@ -268,7 +279,8 @@ struct SurgicalScene::Impl {
       Capsule c;
       const double ts = t * p.instrument_speed;
       cv::Vec3d tip = ip.tip_centre;
-      for (int k = 0; k < 3; ++k) tip[k] += ip.tip_amp[k] * std::sin(ip.omega[k] * ts + ip.phase[k]);
+      for (int k = 0; k < 3; ++k)
+        tip[k] += ip.tip_amp[k] * std::sin(ip.omega[k] * ts + ip.phase[k]);
       const cv::Vec3d axis = cv::normalize(tip - ip.entry);
       c.a = ip.entry - 0.06 * axis;  // the shaft continues out of view
       c.b = tip;
@@ -451,11 +463,13 @@ struct SurgicalScene::Impl {
       double ang = std::atan2(dot3(q, c.u2), dot3(q, c.u1)) / (2 * kPi);
       if (ang < 0) ang += 1.0;
       float m = 0.0f;
-      sampleBilinear<1>(metal, ang * (metal.cols - 1), std::min(from_tip / metal_axial_cell, double(metal.rows - 1)), &m);
+      sampleBilinear<1>(metal, ang * (metal.cols - 1),
+                        std::min(from_tip / metal_axial_cell, double(metal.rows - 1)), &m);
       // Stainless steel under a coaxial light: bright but mostly below saturation.
       double g = 0.33 * (1.0 + 0.35 * p.instrument_texture * m);
       // Dark rings a few millimetres behind the tip, as printed on real instruments.
-      if (p.instrument_texture > 0 && ((from_tip > 0.009 && from_tip < 0.0105) || (from_tip > 0.014 && from_tip < 0.015)))
+      if (p.instrument_texture > 0 &&
+          ((from_tip > 0.009 && from_tip < 0.0105) || (from_tip > 0.014 && from_tip < 0.015)))
         g *= 0.25;
       albedo_rgb = cv::Vec3d(g, g * 1.01, g * 1.03);
       ks = 0.8;
@@ -468,7 +482,8 @@ struct SurgicalScene::Impl {
     // on the axis at the mean tissue distance). Both depend on the light only: the same in both
     // views.
     const double cos_axis = std::max(0.0, -l[2]);
-    const double irradiance = cos_axis * cos_axis * (p.tissue_distance_m * p.tissue_distance_m) / r2;
+    const double irradiance =
+        cos_axis * cos_axis * (p.tissue_distance_m * p.tissue_distance_m) / r2;
     const double ndl = std::max(0.0, dot3(n, l));
     *diffuse = albedo_rgb * (ndl * irradiance);
     *specular = cv::Vec3d(0, 0, 0);
@@ -554,8 +569,10 @@ struct SurgicalScene::Impl {
           cv::Vec3d dif, spc;
           shade(st, hit, C, &dif, &spc);
           const double e = 0.8;  // exposure: bright tissue just below saturation
-          for (int c = 0; c < 3; ++c) out[3 * x + c] += w * gammaEncode(e * (dif[2 - c] + spc[2 - c]));
-          if (spc[1] > 0 && gammaEncode(e * (dif[1] + spc[1])) - gammaEncode(e * dif[1]) > 2.0f) sm[x] = 255;
+          for (int c = 0; c < 3; ++c)
+            out[3 * x + c] += w * gammaEncode(e * (dif[2 - c] + spc[2 - c]));
+          if (spc[1] > 0 && gammaEncode(e * (dif[1] + spc[1])) - gammaEncode(e * dif[1]) > 2.0f)
+            sm[x] = 255;
         }
       }
     });
@@ -582,10 +599,12 @@ void SurgicalScene::Impl::build() {
       // Slightly different lenses, off-centre principal points and a few tenths of a degree of
       // misalignment: what a real stereo endoscope's calibration shows.
       const double fk = f * (k == 0 ? 1.0 : 1.004);
-      c.K = cv::Matx33d(fk, 0, cx + (k == 0 ? 3.5 : -2.5), 0, fk * 1.001, cy + (k == 0 ? -2.0 : 1.5), 0, 0, 1);
+      c.K = cv::Matx33d(fk, 0, cx + (k == 0 ? 3.5 : -2.5), 0, fk * 1.001,
+                        cy + (k == 0 ? -2.0 : 1.5), 0, 0, 1);
       c.D = k == 0 ? std::array<double, 5>{-0.21, 0.06, 0.0006, -0.0004, 0.0}
                    : std::array<double, 5>{-0.19, 0.05, -0.0005, 0.0003, 0.0};
-      const cv::Vec3d rvec = k == 0 ? cv::Vec3d(0.004, -0.006, 0.003) : cv::Vec3d(-0.003, 0.005, -0.002);
+      const cv::Vec3d rvec =
+          k == 0 ? cv::Vec3d(0.004, -0.006, 0.003) : cv::Vec3d(-0.003, 0.005, -0.002);
       cv::Mat R;
       cv::Rodrigues(rvec, R);
       c.R_rig_cam = cv::Matx33d(R);
@@ -678,10 +697,12 @@ void SurgicalScene::Impl::build() {
     InstrumentPath ip;
     const double side = i == 0 ? -1.0 : 1.0;
     const double ze = 0.55 * D;
-    ip.entry = cv::Vec3d(side * (half * ze + 2.5 * p.instrument_radius_m), rng.uniform(-0.4, 0.4) * vis_y, ze);
+    ip.entry = cv::Vec3d(side * (half * ze + 2.5 * p.instrument_radius_m),
+                         rng.uniform(-0.4, 0.4) * vis_y, ze);
     const double clearance = p.tissue_relief_m + p.breathing_amplitude_m + p.heartbeat_amplitude_m +
                              p.instrument_radius_m + 0.1 * D;
-    ip.tip_centre = cv::Vec3d(side * 0.15 * vis_x, rng.uniform(-0.2, 0.2) * vis_y, D - clearance - 0.04 * D);
+    ip.tip_centre =
+        cv::Vec3d(side * 0.15 * vis_x, rng.uniform(-0.2, 0.2) * vis_y, D - clearance - 0.04 * D);
     ip.tip_amp = cv::Vec3d(0.3 * vis_x, 0.35 * vis_y, 0.04 * D);
     const double periods[3] = {5.3, 3.7, 6.1};
     for (int k = 0; k < 3; ++k) {
@@ -752,7 +773,8 @@ void SurgicalScene::Impl::buildTexture(cv::RNG& rng) {
   std::vector<Seg> todo;
   for (int i = 0; i < count; ++i) {
     Seg s;
-    s.pos = cv::Point2d(rng.uniform(0.0, double(size.width)), rng.uniform(0.0, double(size.height)));
+    s.pos =
+        cv::Point2d(rng.uniform(0.0, double(size.width)), rng.uniform(0.0, double(size.height)));
     s.dir = rng.uniform(0.0, 2 * kPi);
     s.width = rng.uniform(0.25, 0.9) * mm;
     s.opacity = rng.uniform(0.5, 0.95);
@@ -769,8 +791,9 @@ void SurgicalScene::Impl::buildTexture(cv::RNG& rng) {
       const int th = std::max(1, int(std::lround(s.width)));
       const double op = s.opacity * std::min(1.0, s.width);  // sub-texel vessels fade
       cv::Mat& target = s.deep ? deep : vessels;
-      cv::line(target, cv::Point(int(s.pos.x * 16), int(s.pos.y * 16)), cv::Point(int(next.x * 16), int(next.y * 16)),
-               cv::Scalar(255 * op), th, cv::LINE_AA, 4);
+      cv::line(target, cv::Point(int(s.pos.x * 16), int(s.pos.y * 16)),
+               cv::Point(int(next.x * 16), int(next.y * 16)), cv::Scalar(255 * op), th, cv::LINE_AA,
+               4);
       s.pos = next;
       s.dir += rng.gaussian(0.18);
       s.width *= 0.994;
@@ -835,7 +858,8 @@ void SurgicalScene::Impl::buildTexture(cv::RNG& rng) {
   // Brushed metal: streaks along the shaft (fine across the angle, coarse along the axis).
   // Rows = axial cells of metal_axial_cell metres from the tip, cols = angle around the axis.
   cv::Mat streaks;
-  cv::resize(noiseField(rng, cv::Size(256, 24), 1.5), streaks, cv::Size(256, 480), 0, 0, cv::INTER_LINEAR);
+  cv::resize(noiseField(rng, cv::Size(256, 24), 1.5), streaks, cv::Size(256, 480), 0, 0,
+             cv::INTER_LINEAR);
   metal = 0.9 * streaks + 0.3 * noiseField(rng, cv::Size(256, 480), 2.0);
   metal_axial_cell = 0.00025;
 }
@@ -945,7 +969,8 @@ double groundTruthWarpError(const SurgicalFrame& frame, double disparity_offset_
                             int64_t* count) {
   const cv::Mat& gt = frame.gt_disparity;
   cv::Mat lo, hi;
-  const cv::Mat kernel = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * margin_px + 1, 2 * margin_px + 1));
+  const cv::Mat kernel =
+      cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * margin_px + 1, 2 * margin_px + 1));
   cv::erode(gt, lo, kernel);
   cv::dilate(gt, hi, kernel);
   cv::Mat left, right;

@@ -1,0 +1,100 @@
+// Names of the rectification modes and methods, and the validation of RectifyParams.
+
+#include <sstream>
+#include <string>
+
+#include "endo_stereo/core/rectification.hpp"
+
+namespace endo_stereo {
+
+std::string toString(RectifyMode mode) {
+  switch (mode) {
+    case RectifyMode::kCalibrated:
+      return "calibrated";
+    case RectifyMode::kUncalibrated:
+      return "uncalibrated";
+    case RectifyMode::kPassThrough:
+      return "pass_through";
+  }
+  return "calibrated";
+}
+
+bool parseRectifyMode(const std::string& t, RectifyMode* m) {
+  if (t == "calibrated") {
+    *m = RectifyMode::kCalibrated;
+  } else if (t == "uncalibrated") {
+    *m = RectifyMode::kUncalibrated;
+  } else if (t == "pass_through" || t == "passthrough" || t == "none") {
+    *m = RectifyMode::kPassThrough;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+std::string toString(UncalibratedMethod m) {
+  switch (m) {
+    case UncalibratedMethod::kAuto:
+      return "auto";
+    case UncalibratedMethod::kHomography:
+      return "homography";
+    case UncalibratedMethod::kPolar:
+      return "polar";
+  }
+  return "auto";
+}
+
+bool parseUncalibratedMethod(const std::string& t, UncalibratedMethod* m) {
+  if (t == "auto") {
+    *m = UncalibratedMethod::kAuto;
+  } else if (t == "homography") {
+    *m = UncalibratedMethod::kHomography;
+  } else if (t == "polar") {
+    *m = UncalibratedMethod::kPolar;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+std::string RectifyParams::validate() const {
+  std::ostringstream m;
+  auto bad = [&](const char* field, const char* range, double v) {
+    m << "rectify." << field << ": must be " << range << ", got " << v;
+    return m.str();
+  };
+  if (!(alpha == -1.0 || (alpha >= 0.0 && alpha <= 1.0)))
+    return bad("alpha", "-1 or in [0, 1]", alpha);
+  if (output_width_px < 0 || output_width_px > 32768) {
+    return bad("output_width_px", "in [0, 32768]", output_width_px);
+  }
+  if (output_height_px < 0 || output_height_px > 32768) {
+    return bad("output_height_px", "in [0, 32768]", output_height_px);
+  }
+  if (!(output_scale_x > 0.0 && output_scale_x <= 4.0))
+    return bad("output_scale_x", "in (0, 4]", output_scale_x);
+  if (!(output_scale_y > 0.0 && output_scale_y <= 4.0))
+    return bad("output_scale_y", "in (0, 4]", output_scale_y);
+  if (sift_features < 0) return bad("sift_features", ">= 0", sift_features);
+  if (!(ratio_test > 0.0 && ratio_test < 1.0)) return bad("ratio_test", "in (0, 1)", ratio_test);
+  if (!(ransac_threshold_px > 0.0)) return bad("ransac_threshold_px", "> 0", ransac_threshold_px);
+  if (!(ransac_confidence > 0.0 && ransac_confidence < 1.0)) {
+    return bad("ransac_confidence", "in (0, 1)", ransac_confidence);
+  }
+  if (min_inliers < 8) return bad("min_inliers", ">= 8", min_inliers);
+  if (estimation_frames < 1) return bad("estimation_frames", ">= 1", estimation_frames);
+  if (!(reestimate_threshold_px >= 0.0))
+    return bad("reestimate_threshold_px", ">= 0", reestimate_threshold_px);
+  if (reestimate_after < 1) return bad("reestimate_after", ">= 1", reestimate_after);
+  if (!(polar_auto_distance > 0.0)) return bad("polar_auto_distance", "> 0", polar_auto_distance);
+  if (!(focal_px >= 0.0) || !std::isfinite(focal_px))
+    return bad("focal_px", ">= 0 (0 = unknown)", focal_px);
+  if (!(baseline_m >= 0.0) || !std::isfinite(baseline_m))
+    return bad("baseline_m", ">= 0 (0 = unknown)", baseline_m);
+  if (quality_stride < 0) return bad("quality_stride", ">= 0 (0 = never)", quality_stride);
+  if (!(quality_warn_px > 0.0)) return bad("quality_warn_px", "> 0", quality_warn_px);
+  if (quality_max_features < 0) return bad("quality_max_features", ">= 0", quality_max_features);
+  return {};
+}
+
+}  // namespace endo_stereo
