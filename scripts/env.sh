@@ -1,5 +1,5 @@
 # Sourced by the scripts: ROS from Debian under /usr, /usr/bin/python3 first (pyenv's python3 lacks
-# the ROS modules, ../shared/PLATFORM.md), and the catkin workspace WS (default: ./.ws, git-ignored).
+# the ROS modules), and the catkin workspace WS (default: ./.ws, git-ignored).
 # Workspace layout (scripts/build.sh): WS/src/endo_stereo -> WS/endo_stereo, a folder of links to
 # the repository's top-level entries (never to WS itself), so that `rosrun`, `roslaunch` and
 # `rospack`, which follow links when they search a package, never loop back into the workspace.

@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""ROS-level reliability runs of endo_stereo (RELIABILITY.md, issue 6), with a real master.
+"""ROS-level reliability runs of endo_stereo (RELIABILITY.md: bad input, floods, soak), with a real master.
 
 Modes (the node under test is started, watched and restarted by this driver):
   soak       closed loop: publish a stereo pair, wait for its disparity, repeat --frames times

@@ -4,7 +4,7 @@
 #
 # Debian packages the libraries (libstereo_image_proc.so.0d, libimage_proc.so.0d) and the node
 # /usr/lib/stereo_image_proc/stereo_image_proc, but not the plugin descriptions, so pluginlib cannot
-# find the nodelets (../shared/PLATFORM.md). This writes, under DIR, one scratch package per library:
+# find the nodelets. This writes, under DIR, one scratch package per library:
 #   DIR/stereo_image_proc/{package.xml, nodelet_plugins.xml, lib/libstereo_image_proc.so -> Debian's}
 #   DIR/image_proc/{package.xml, nodelet_plugins.xml, lib/libimage_proc.so -> Debian's}
 # and prints the ROS_PACKAGE_PATH to use (DIR first, then the current value), nothing else on stdout.

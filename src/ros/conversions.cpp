@@ -222,7 +222,7 @@ stereo_msgs::DisparityImage toDisparityImage(const cv::Mat& disparity,
   }
   // The box is computed from what was written, so it always lies inside the image and is empty
   // (all zero) when nothing is valid; stereo_image_proc derives it from the SGBM parameters
-  // instead and can wrap around (PLATFORM.md).
+  // instead and can wrap around.
   const cv::Rect box = validBoundingBox(disparity);
   msg.valid_window.x_offset = static_cast<uint32_t>(box.x);
   msg.valid_window.y_offset = static_cast<uint32_t>(box.y);

@@ -757,7 +757,7 @@ int main(int argc, char** argv) {
   for (double dm : deltas) {
     sweep("ours (default)", "delta_min", dm, ours_with("matcher.delta_min", dm));
   }
-  // The paper's knob is not monotone once the edge test is on (METHOD.md: pixels rejected at
+  // The paper's knob is not monotone once the edge test is on (docs/method.md: pixels rejected at
   // small windows go on to larger ones, which fatten more); the edge test's threshold is the
   // knob that trades precision for density in the default preset, so it is swept too.
   for (double jump : jumps) {

@@ -1,6 +1,6 @@
 // endo_stereo_cli: the robust matcher (the whole Pipeline: pre-processing, rectification, matching,
 // temporal priors, fusion, coverage, point cloud) on image files or image sequences. Runs the same
-// core as the nodelet (DESIGN.md: one code path). `endo_stereo_cli --help` lists the flags.
+// core as the nodelet (one code path: what is tuned offline is what runs live). `endo_stereo_cli --help` lists the flags.
 //
 // Exit status: 0 success; 1 an input could not be read or processed (unreadable file, size
 // mismatch, rectification failure, unwritable output); 2 bad usage (unknown flag, bad value,

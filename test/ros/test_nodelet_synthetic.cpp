@@ -176,7 +176,7 @@ TEST(CalibratedPair, DisparityAndCloudMatchGroundTruth) {
   EXPECT_GE(suggested_min, kMinDisparity) << "widen the range here and in the .test file";
   EXPECT_LE(suggested_max, kMaxDisparity) << "widen the range here and in the .test file";
 
-  // --- Conventions (DESIGN.md).
+  // --- Conventions (README, ROS usage: DisparityImage and PointCloud2).
   const cv::Matx34d& pl = s.scene->calibration().left.P;
   const cv::Matx34d& pr = s.scene->calibration().right.P;
   EXPECT_EQ(d->header.frame_id, s.left_info.header.frame_id);

@@ -3,7 +3,7 @@
  * @brief Free functions between ROS messages and the ROS-free core types, each with its inverse
  * (round trips are tested in test/ros/test_conversions.cpp).
  *
- * Conventions (DESIGN.md, "ROS conventions users expect"):
+ * Conventions (those stereo_image_proc users expect):
  * - stereo_msgs/DisparityImage: 32FC1, f and T from the rectified geometry, Z = f T / d. The core
  *   keeps NaN for invalid pixels and a disparity measured between the rectified images
  *   (d_core = x_left - x_right); the message holds d_msg = d_core - doffs (doffs = cx_left -

@@ -1,13 +1,13 @@
 /**
  * @file ros_params.hpp
  * @brief The nodelet's own settings (RosParams) and the one path config/<preset>.yaml -> ROS parameters
- * -> core structs (DESIGN.md "Parameters").
+ * -> core structs (one path from YAML to the structs).
  *
  * Pipeline parameters live under the node's private namespace with the keys of params_io.hpp,
  * `section.field` written as `~section/field` (`~matcher/delta_min`), which is what
  * `<rosparam command="load" file="config/default.yaml"/>` produces from a preset. A YAML preset
  * can also be named by `~config_file` (loaded first, then the individual parameters on top).
- * The nodelet's own settings are `~<name>` (`~queue_size`, `~approximate_sync`, DESIGN.md); a
+ * The nodelet's own settings are `~<name>` (`~queue_size`, `~approximate_sync`, as stereo_image_proc names them); a
  * preset's `ros:` section (`~ros/<name>`) is read too, with `~<name>` taking precedence.
  *
  * Thread safety: the functions are reentrant; they read the parameter server only.
