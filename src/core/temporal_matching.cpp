@@ -156,12 +156,16 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
                               TemporalMatchReport* report) {
   TemporalMatchReport r;
   const TemporalParams& tp = temporal.params();
+  // Larger windows for narrowed misses, except on a seeded frame: there a miss more often means a
+  // coarse value off by more than the range than a window too small, and the seeded frame is the
+  // one that must cost no more than the frames after it.
+  auto useLargerWindows = [&](bool on) {
+    if (on == larger_windows_) return;
+    matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
+    larger_windows_ = on;
+  };
   const bool larger_windows = tp.enabled && tp.fallback_larger_windows;
-  if (larger_windows != larger_windows_) {
-    matcher_.setParams(passParams(matcher_params_, larger_windows),
-                       withoutPostFilter(filter_params_));
-    larger_windows_ = larger_windows;
-  }
+  useLargerWindows(larger_windows);
   const bool can_seed = tp.enabled && tp.coarse_seed && !left.empty() && !right.empty() &&
                         left.size() == right.size() && left.type() == CV_8UC1 &&
                         right.type() == CV_8UC1;
@@ -203,6 +207,7 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
     edge_ms += ms;
   };
   auto matchPass = [&](const SearchRange* rg) {
+    useLargerWindows(larger_windows && !r.seeded);
     matcher_.compute(left, right, out, rg);
     addTimes(out.stats);
     edgeTest(out);

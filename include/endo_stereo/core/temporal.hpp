@@ -115,7 +115,7 @@ struct TemporalParams {
   /// Same-frame fallback in the narrowed range: a pixel whose narrowed search finds nothing with
   /// the first window goes on with the larger ones (up to matcher.window_max_px) in the same
   /// matcher pass, as a full-range search would; TemporalMatcher then lifts
-  /// matcher.window_max_narrowed_px for the pass. On the in-vivo video every narrowed miss that a
+  /// matcher.window_max_narrowed_px for the pass (not on a frame seeded by coarse_seed). On the in-vivo video every narrowed miss that a
   /// full search accepts is accepted inside the narrowed range, with a window wider than the first
   /// (docs/temporal_results.md), so this is what brings the priors' density up to the full
   /// search's. false = the matcher's cap applies.

@@ -10,7 +10,9 @@
  *    (TemporalTracker::seedPriors()), so the frame searches narrowed ranges, not the full one;
  * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred); with
  *    TemporalParams::fallback_larger_windows a narrowed search that finds nothing with the first
- *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted);
+ *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted), except on
+ *    a seeded frame (a miss there is more often a coarse value off by more than the range, and
+ *    that frame must cost no more than the ones after it);
  * 3. a scene change (TemporalTracker::rejectPriors()): the frame again, seeded anew when it was not
  *    seeded already, else over the full range;
  * 4. the same-frame fallback over the full range (TemporalParams::fallback_max_share): the pixels
