@@ -5,6 +5,8 @@
 #include <exception>
 #include <stdexcept>
 
+#include "endo_stereo/core/temporal_matching.hpp"
+
 namespace endo_stereo {
 namespace {
 
@@ -65,7 +67,7 @@ struct Pipeline::Impl {
     rectifier.setQualityDisparityRange(p.matcher.min_disparity, p.matcher.max_disparity);
   }
 
-  RobustMatcher matcher;
+  TemporalMatcher matcher;  // the frame's matching passes with the temporal priors
   StereoRectifier rectifier;
   TemporalTracker temporal;
   StereoCalibration calibration;  // as given, before scaling for pre-processing
@@ -195,19 +197,17 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     const SearchRange* range = impl_->temporal.beginFrame(info, &reason);
     out.priors_reset = !reason.empty();
     out.reset_reason = reason;
-    out.priors_used = range != nullptr;
     out.temporal_ms = msSince(t);
 
-    // --- matching and post-filtering.
+    // --- matching and post-filtering: the narrowed pass, a coarse seed where no prior is usable,
+    // the same-frame fallback for narrowed misses, and a scene change's second go
+    // (temporal_matching.hpp).
     t = Clock::now();
-    impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, out.match, range);
-    if (range && impl_->temporal.rejectPriors(out.match.disparity)) {
-      // The priors described another scene (a cut, a jump of the endoscope): rather than output
-      // what the wrong narrowed ranges let through, match this frame again over the full range.
-      impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, out.match, nullptr);
-      out.priors_used = false;
-      out.priors_rejected = true;
-    }
+    TemporalMatchReport report;
+    impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, impl_->temporal, info, range,
+                           out.match, &report);
+    out.priors_used = report.priors_used;
+    out.priors_rejected = report.priors_rejected;
     out.match_ms = msSince(t);
 
     // --- priors for the next frame, fusion, coverage.

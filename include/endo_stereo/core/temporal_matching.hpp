@@ -1,0 +1,112 @@
+/**
+ * @file temporal_matching.hpp
+ * @brief The matching passes of one video frame with temporal priors (METHOD.md section 4): priors
+ * that add to the full search's result and never take from it.
+ *
+ * Per frame, between TemporalTracker::beginFrame() and endFrame():
+ * 1. no usable prior (the first frame, after a reset or a scene change) and
+ *    TemporalParams::coarse_seed: a coarse estimate at half resolution over half the range (both
+ *    views downsampled by 2, INTER_AREA), doubled and upsampled (nearest), seeds the priors
+ *    (TemporalTracker::seedPriors()), so the frame searches narrowed ranges, not the full one;
+ * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred); with
+ *    TemporalParams::fallback_larger_windows a narrowed search that finds nothing with the first
+ *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted), except on
+ *    a seeded frame (a miss there is more often a coarse value off by more than the range, and
+ *    that frame must cost no more than the ones after it);
+ * 3. a scene change (TemporalTracker::rejectPriors()): the frame again, seeded anew when it was not
+ *    seeded already, else over the full range;
+ * 4. the same-frame fallback over the full range (TemporalParams::fallback_max_share): the pixels
+ *    whose narrowed search still missed, searched again over the full range (a second matcher
+ *    pass over those pixels only) and merged in; the depth-edge measure judges them on the merged
+ *    map (against the narrowed pass's neighbours too), the narrowed pass's pixels keep the verdict
+ *    of their own pass: the fallback only adds;
+ * 5. the post-filter (isolated outliers, small holes) once, on the merged map, exactly as
+ *    RobustMatcher::compute() runs it after its single pass.
+ * With priors off, or without larger windows and a second pass, the result equals a single
+ * RobustMatcher::compute() with the same range.
+ *
+ * Limitation of the second pass: a pixel's left-right check compares with the right-to-left
+ * profiles of the pixels searched in the same call, and those are only the picked ones (the
+ * matcher builds them from the requested ranges), so the check is weaker there than in a single
+ * call. A range that bounds the profiles without being matched itself would need a matcher change.
+ *
+ * Use (what Pipeline does per frame):
+ * @code
+ *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reason);
+ *   matcher.compute(left, right, temporal, info, range, result, &report);
+ *   temporal.endFrame(result.disparity, want_fused, want_coverage);
+ * @endcode
+ *
+ * Not thread-safe: one instance per processing thread. ROS-free: OpenCV only.
+ */
+#pragma once
+
+#include <cstdint>
+
+#include <opencv2/core.hpp>
+
+#include "endo_stereo/core/matcher.hpp"
+#include "endo_stereo/core/temporal.hpp"
+
+namespace endo_stereo {
+
+/// What TemporalMatcher::compute() did for one frame.
+struct TemporalMatchReport {
+  bool priors_used = false;      ///< the output comes from narrowed ranges (with any fallback)
+  bool priors_rejected = false;  ///< a scene change: the frame was matched again
+  bool seeded = false;           ///< a coarse estimate seeded this frame's priors
+  int64_t fallback_pixels = 0;   ///< narrowed misses searched again over the full range
+  int64_t fallback_valid = 0;    ///< of those, valid after the second pass (before post-filter)
+  double coarse_ms = 0.0;        ///< the coarse estimate (downsampling, matching, upsampling)
+  double fallback_ms = 0.0;      ///< the second pass and the merge
+};
+
+/// The coarse matcher's parameters for @p full: half the disparity range (min rounded down, max
+/// up), everything else as given.
+MatcherParams coarseMatcherParams(const MatcherParams& full);
+
+/**
+ * Upsample a half-resolution disparity (CV_32FC1, NaN invalid) to @p size: nearest neighbour,
+ * values doubled; NaN stays NaN. Pixel (x, y) takes (x / 2, y / 2).
+ */
+void upsampleDisparityX2(const cv::Mat& half, cv::Size size, cv::Mat& full);
+
+/// RobustMatcher's post-filter (outlier removal, hole filling, confidence of filled pixels, the
+/// per-code counters and the valid count) on a result matched with the post-filter off.
+void applyPostFilter(MatchResult& result, const PostFilterParams& params);
+
+class TemporalMatcher {
+ public:
+  /// @throws std::invalid_argument when the params fail validate().
+  TemporalMatcher(const MatcherParams& matcher_params, const PostFilterParams& filter_params);
+  /// @throws std::invalid_argument when invalid (old ones kept).
+  void setParams(const MatcherParams& matcher_params, const PostFilterParams& filter_params);
+
+  /**
+   * Match one frame as the file comment says.
+   * @param temporal the tracker, between beginFrame() (which returned @p range) and endFrame().
+   * @param info     as given to beginFrame().
+   * @param range    beginFrame()'s result (nullptr = full range).
+   * @param out      disparity, codes, confidence and stats (match_ms covers all passes).
+   * @throws std::invalid_argument as RobustMatcher::compute().
+   */
+  void compute(const cv::Mat& left, const cv::Mat& right, TemporalTracker& temporal,
+               const TemporalFrameInfo& info, const SearchRange* range, MatchResult& out,
+               TemporalMatchReport* report = nullptr);
+
+ private:
+  /// The coarse estimate of the pair, upsampled into seed_.
+  void coarseEstimate(const cv::Mat& left, const cv::Mat& right);
+
+  MatcherParams matcher_params_;
+  PostFilterParams filter_params_;
+  RobustMatcher matcher_;  // the passes only match: edge test and post-filter run on the result
+  bool larger_windows_ = false;  // matcher_ tries every window size in narrowed ranges
+  RobustMatcher coarse_;   // half resolution, half range, post-filter on
+  MatchResult second_, merged_, coarse_result_;
+  cv::Mat left_half_, right_half_, seed_;
+  cv::Mat window_idx_;   // the merged map's accepting window indices (depth-edge measure)
+  cv::Mat edge_tmp_[5];  // the depth-edge measure's scratch
+};
+
+}  // namespace endo_stereo

@@ -1,0 +1,288 @@
+// The matching passes of one frame with temporal priors. See temporal_matching.hpp.
+#include "endo_stereo/core/temporal_matching.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <limits>
+#include <stdexcept>
+
+#include <opencv2/imgproc.hpp>
+
+#include "depth_edge_filter.hpp"
+
+namespace endo_stereo {
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double msSince(Clock::time_point start) {
+  return std::chrono::duration<double, std::milli>(Clock::now() - start).count();
+}
+
+PostFilterParams withoutPostFilter(PostFilterParams p) {
+  p.remove_outliers = false;
+  p.fill_holes = false;
+  return p;
+}
+
+// The passes match only: the depth-edge measure runs once, on the merged map (as
+// RobustMatcher::compute() runs it on its own map), so a pixel of the fallback pass is judged
+// against the narrowed pass's neighbours too.
+MatcherParams withoutEdgeTest(MatcherParams p) {
+  p.edge_disparity_jump_px = 0.0;
+  p.edge_window_max_px = 0;
+  return p;
+}
+
+// The passes' matcher: no depth-edge measure, and with TemporalParams::fallback_larger_windows
+// every window size in narrowed ranges too (MatcherParams::window_max_narrowed_px = 0).
+MatcherParams passParams(const MatcherParams& p, bool larger_windows) {
+  MatcherParams q = withoutEdgeTest(p);
+  if (larger_windows) q.window_max_narrowed_px = 0;
+  return q;
+}
+
+bool edgeTestOn(const MatcherParams& p) {
+  return p.edge_disparity_jump_px > 0.0 || p.edge_window_max_px > 0;
+}
+
+int floorHalf(int v) { return v >= 0 ? v / 2 : -((-v + 1) / 2); }
+int ceilHalf(int v) { return -floorHalf(-v); }
+
+}  // namespace
+
+MatcherParams coarseMatcherParams(const MatcherParams& full) {
+  MatcherParams p = full;
+  p.min_disparity = floorHalf(full.min_disparity);
+  p.max_disparity = std::max(p.min_disparity, ceilHalf(full.max_disparity));
+  return p;
+}
+
+void upsampleDisparityX2(const cv::Mat& half, cv::Size size, cv::Mat& full) {
+  if (half.type() != CV_32FC1) {
+    throw std::invalid_argument("upsampleDisparityX2: half must be CV_32FC1");
+  }
+  if (half.cols < (size.width + 1) / 2 || half.rows < (size.height + 1) / 2) {
+    throw std::invalid_argument("upsampleDisparityX2: half is smaller than size / 2");
+  }
+  full.create(size, CV_32FC1);
+  for (int y = 0; y < size.height; ++y) {
+    const float* h = half.ptr<float>(y / 2);
+    float* f = full.ptr<float>(y);
+    for (int x = 0; x < size.width; ++x) f[x] = 2.0f * h[x / 2];  // NaN * 2 = NaN
+  }
+}
+
+void applyPostFilter(MatchResult& result, const PostFilterParams& fp) {
+  const auto t0 = Clock::now();
+  cv::Mat& disparity = result.disparity;
+  cv::Mat& code = result.code;
+  cv::Mat& confidence = result.confidence;
+  const int W = disparity.cols, H = disparity.rows;
+  if (fp.remove_outliers) removeIsolatedOutliers(disparity, code, fp);
+  if (fp.fill_holes) {
+    const cv::Mat code_before = code.clone();
+    fillSmallHoles(disparity, code, fp);
+    // A filled pixel gets the lowest confidence of the measured neighbours it was filled from
+    // (RobustMatcher::compute()'s rule).
+    for (int y = 0; y < H; ++y) {
+      const uint8_t* cd = code.ptr<uint8_t>(y);
+      const uint8_t* cb0 = code_before.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (cd[x] != kCodeFilled || cb0[x] == kCodeFilled) continue;
+        float cmin = 1.f;
+        for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
+          const uint8_t* cb = code_before.ptr<uint8_t>(yy);
+          const float* cf = confidence.ptr<float>(yy);
+          for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
+            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
+          }
+        }
+        confidence.ptr<float>(y)[x] = cmin;
+      }
+    }
+  }
+  // Counters after the filters; a rejected pixel has confidence 0.
+  MatchStats& st = result.stats;
+  st.rejected.fill(0);
+  st.valid_pixels = 0;
+  for (int y = 0; y < H; ++y) {
+    const uint8_t* cd = code.ptr<uint8_t>(y);
+    float* cf = confidence.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      const bool filled = cd[x] == kCodeFilled;
+      const bool rejected = (cd[x] < kNumRejectCodes) & !filled;
+      if (cd[x] < kNumRejectCodes) ++st.rejected[cd[x]];
+      cf[x] = rejected ? 0.f : cf[x];
+      st.valid_pixels += (cd[x] >= kCodeAcceptedBase) | filled;
+    }
+  }
+  st.filter_ms = msSince(t0);
+}
+
+TemporalMatcher::TemporalMatcher(const MatcherParams& matcher_params,
+                                 const PostFilterParams& filter_params)
+    : matcher_params_(matcher_params),
+      filter_params_(filter_params),
+      matcher_(passParams(matcher_params, false), withoutPostFilter(filter_params)),
+      coarse_(coarseMatcherParams(matcher_params), filter_params) {}
+
+void TemporalMatcher::setParams(const MatcherParams& matcher_params,
+                                const PostFilterParams& filter_params) {
+  // Validate everything first so that a throw leaves the old parameters in place.
+  std::string err = matcher_params.validate();
+  if (err.empty()) err = filter_params.validate();
+  if (err.empty()) err = coarseMatcherParams(matcher_params).validate();
+  if (!err.empty()) throw std::invalid_argument(err);
+  matcher_.setParams(passParams(matcher_params, larger_windows_),
+                     withoutPostFilter(filter_params));
+  coarse_.setParams(coarseMatcherParams(matcher_params), filter_params);
+  matcher_params_ = matcher_params;
+  filter_params_ = filter_params;
+}
+
+void TemporalMatcher::coarseEstimate(const cv::Mat& left, const cv::Mat& right) {
+  const cv::Size half((left.cols + 1) / 2, (left.rows + 1) / 2);
+  cv::resize(left, left_half_, half, 0, 0, cv::INTER_AREA);
+  cv::resize(right, right_half_, half, 0, 0, cv::INTER_AREA);
+  coarse_.compute(left_half_, right_half_, coarse_result_);
+  upsampleDisparityX2(coarse_result_.disparity, left.size(), seed_);
+}
+
+void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
+                              TemporalTracker& temporal, const TemporalFrameInfo& info,
+                              const SearchRange* range, MatchResult& out,
+                              TemporalMatchReport* report) {
+  TemporalMatchReport r;
+  const TemporalParams& tp = temporal.params();
+  // Larger windows for narrowed misses, except on a seeded frame: there a miss more often means a
+  // coarse value off by more than the range than a window too small, and the seeded frame is the
+  // one that must cost no more than the frames after it.
+  auto useLargerWindows = [&](bool on) {
+    if (on == larger_windows_) return;
+    matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
+    larger_windows_ = on;
+  };
+  const bool larger_windows = tp.enabled && tp.fallback_larger_windows;
+  useLargerWindows(larger_windows);
+  const bool can_seed = tp.enabled && tp.coarse_seed && !left.empty() && !right.empty() &&
+                        left.size() == right.size() && left.type() == CV_8UC1 &&
+                        right.type() == CV_8UC1;
+  double match_ms = 0.0, prepare_ms = 0.0, edge_ms = 0.0;
+  auto addTimes = [&](const MatchStats& s) {
+    match_ms += s.match_ms;
+    prepare_ms += s.prepare_ms;
+    edge_ms += s.edge_ms;
+  };
+  auto seed = [&]() {
+    const auto t = Clock::now();
+    coarseEstimate(left, right);
+    r.seeded = true;
+    const SearchRange* seeded = temporal.seedPriors(seed_, info);
+    r.coarse_ms += msSince(t);
+    return seeded;
+  };
+
+  // The depth-edge measure on a result of the passes (which only match), as
+  // RobustMatcher::compute() runs it after matching.
+  auto edgeTest = [&](MatchResult& m) {
+    if (!edgeTestOn(matcher_params_)) return;
+    const auto t = Clock::now();
+    // The window index of each accepted pixel, from its code (kCodeAcceptedBase + index).
+    window_idx_.create(m.code.size(), CV_8UC1);
+    for (int y = 0; y < m.code.rows; ++y) {
+      const uint8_t* c = m.code.ptr<uint8_t>(y);
+      uint8_t* w = window_idx_.ptr<uint8_t>(y);
+      for (int x = 0; x < m.code.cols; ++x) {
+        w[x] = c[x] >= kCodeAcceptedBase ? uint8_t(c[x] - kCodeAcceptedBase) : uint8_t(0);
+      }
+    }
+    const MatcherParams& mp = matcher_params_;
+    const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
+    rejectEdgeStraddlers(mp, left, right, num_levels, window_idx_, m, edge_tmp_[0], edge_tmp_[1],
+                         edge_tmp_[2], edge_tmp_[3], edge_tmp_[4]);
+    const double ms = msSince(t);
+    match_ms += ms;
+    edge_ms += ms;
+  };
+  auto matchPass = [&](const SearchRange* rg) {
+    useLargerWindows(larger_windows && !r.seeded);
+    matcher_.compute(left, right, out, rg);
+    addTimes(out.stats);
+    edgeTest(out);
+  };
+
+  if (!range && can_seed) range = seed();
+  matchPass(range);
+  if (range && temporal.rejectPriors(out.disparity)) {
+    // The priors described another scene: the frame again, from a coarse estimate of this very
+    // frame when that is not what just failed, else over the full range.
+    r.priors_rejected = true;
+    range = (can_seed && !r.seeded) ? seed() : nullptr;
+    matchPass(range);
+  }
+  r.priors_used = range != nullptr;
+
+  const SearchRange* fallback = range ? temporal.fallbackRange(out.disparity) : nullptr;
+  if (fallback) {
+    const auto t = Clock::now();
+    matcher_.compute(left, right, second_, fallback);
+    addTimes(second_.stats);
+    // The narrowed pass's map with the picked pixels (non-empty range) taking the second pass's
+    // outcome, whatever it is (they had a miss code). The depth-edge measure judges the new
+    // pixels on that merged map, against the narrowed pass's neighbours too; the narrowed pass's
+    // own pixels keep their verdict (the fallback only adds).
+    out.disparity.copyTo(merged_.disparity);
+    out.code.copyTo(merged_.code);
+    out.confidence.copyTo(merged_.confidence);
+    auto forPicked = [&](const auto& fn) {
+      for (int y = 0; y < out.disparity.rows; ++y) {
+        const int16_t* lo = fallback->lo.ptr<int16_t>(y);
+        const int16_t* hi = fallback->hi.ptr<int16_t>(y);
+        for (int x = 0; x < out.disparity.cols; ++x) {
+          if (lo[x] <= hi[x]) fn(y, x);
+        }
+      }
+    };
+    forPicked([&](int y, int x) {
+      merged_.disparity.at<float>(y, x) = second_.disparity.at<float>(y, x);
+      merged_.code.at<uint8_t>(y, x) = second_.code.at<uint8_t>(y, x);
+      merged_.confidence.at<float>(y, x) = second_.confidence.at<float>(y, x);
+    });
+    edgeTest(merged_);
+    int64_t picked = 0, valid = 0;
+    forPicked([&](int y, int x) {
+      out.disparity.at<float>(y, x) = merged_.disparity.at<float>(y, x);
+      out.code.at<uint8_t>(y, x) = merged_.code.at<uint8_t>(y, x);
+      out.confidence.at<float>(y, x) = merged_.confidence.at<float>(y, x);
+      ++picked;
+      valid += merged_.code.at<uint8_t>(y, x) >= kCodeAcceptedBase;
+    });
+    r.fallback_pixels = picked;
+    r.fallback_valid = valid;
+    r.fallback_ms = msSince(t);
+  }
+
+  // Accepted per window size, before the post-filter (as RobustMatcher::compute() counts them).
+  out.stats.accepted_per_window.fill(0);
+  for (int y = 0; y < out.code.rows; ++y) {
+    const uint8_t* c = out.code.ptr<uint8_t>(y);
+    for (int x = 0; x < out.code.cols; ++x) {
+      if (c[x] >= kCodeAcceptedBase) {
+        const int k = c[x] - kCodeAcceptedBase;
+        if (k < int(out.stats.accepted_per_window.size())) {
+          ++out.stats.accepted_per_window[size_t(k)];
+        }
+      }
+    }
+  }
+  applyPostFilter(out, filter_params_);
+  // Matching time of all passes, the coarse estimate included (the post-filter is filter_ms).
+  out.stats.match_ms = match_ms + r.coarse_ms;
+  out.stats.prepare_ms = prepare_ms;
+  out.stats.edge_ms = edge_ms;
+  if (report) *report = r;
+}
+
+}  // namespace endo_stereo
