@@ -15,7 +15,6 @@
 // --peers prints, per pair and method, bad2 and bad3 (shares of output pixels off by more than
 // 2 / 3 px), the mean error over output pixels, density (output pixels / ground-truth pixels in
 // the mask) and the time of one run; --json writes the same.
-#include <yaml-cpp/yaml.h>
 
 #include <chrono>
 #include <cmath>
@@ -33,6 +32,8 @@
 
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
+#include "endo_stereo/core/params_io.hpp"
+#include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/core/sequence_evaluation.hpp"
 #include "json_writer.hpp"
 
@@ -40,92 +41,33 @@ namespace es = endo_stereo;
 
 namespace {
 
-bool parseBool(const std::string& v) { return v == "true" || v == "1" || v == "yes" || v == "on"; }
-
-// Sets one field by name; returns "" or an error naming the key.
+// Sets one field by name through the core's parameter table (the keys of the presets and of
+// endo_stereo_cli --set); returns "" or an error naming the key.
 std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::string& key,
                      const std::string& v) {
   const std::string sec = key.substr(0, key.find('.'));
-  const std::string name = key.find('.') == std::string::npos ? key : key.substr(key.find('.') + 1);
-  try {
-    if (sec == "matcher") {
-      if (name == "min_disparity")
-        m.min_disparity = std::stoi(v);
-      else if (name == "max_disparity")
-        m.max_disparity = std::stoi(v);
-      else if (name == "window_min_px")
-        m.window_min_px = std::stoi(v);
-      else if (name == "window_step_px")
-        m.window_step_px = std::stoi(v);
-      else if (name == "window_max_px")
-        m.window_max_px = std::stoi(v);
-      else if (name == "gamma_min")
-        m.gamma_min = std::stod(v);
-      else if (name == "delta_min")
-        m.delta_min = std::stod(v);
-      else if (name == "epsilon_px")
-        m.epsilon_px = std::stod(v);
-      else if (name == "min_ncc")
-        m.min_ncc = std::stod(v);
-      else if (name == "min_ncc_narrowed")
-        m.min_ncc_narrowed = std::stod(v);
-      else if (name == "subpixel")
-        m.subpixel = parseBool(v);
-      else if (name == "num_threads")
-        m.num_threads = std::stoi(v);
-      else if (name == "edge_window_max_px")
-        m.edge_window_max_px = std::stoi(v);
-      else if (name == "edge_disparity_jump_px")
-        m.edge_disparity_jump_px = std::stod(v);
-      else if (name == "edge_disparity_jump_above_px")
-        m.edge_disparity_jump_above_px = std::stod(v);
-      else if (name == "edge_margin_px")
-        m.edge_margin_px = std::stoi(v);
-      else if (name == "edge_verify_radius_px")
-        m.edge_verify_radius_px = std::stoi(v);
-      else if (name == "edge_verify_min_ncc")
-        m.edge_verify_min_ncc = std::stod(v);
-      else
-        return "unknown key " + key;
-    } else if (sec == "filter") {
-      if (name == "remove_outliers")
-        f.remove_outliers = parseBool(v);
-      else if (name == "outlier_window_px")
-        f.outlier_window_px = std::stoi(v);
-      else if (name == "outlier_disparity_tol_px")
-        f.outlier_disparity_tol_px = std::stod(v);
-      else if (name == "outlier_min_share")
-        f.outlier_min_share = std::stod(v);
-      else if (name == "fill_holes")
-        f.fill_holes = parseBool(v);
-      else if (name == "fill_max_hole_px")
-        f.fill_max_hole_px = std::stoi(v);
-      else
-        return "unknown key " + key;
-    } else {
-      return "unknown section in " + key;
-    }
-  } catch (const std::exception&) {
-    return "bad value '" + v + "' for " + key;
+  if (sec != "matcher" && sec != "filter") {
+    return "unknown section in " + key + " (this tool takes matcher.* and filter.*)";
   }
+  es::PipelineParams pp;
+  pp.matcher = m;
+  pp.filter = f;
+  const std::string err = es::setPipelineParam(pp, key, v);
+  if (!err.empty()) return err;
+  m = pp.matcher;
+  f = pp.filter;
   return "";
 }
 
+// A preset (config/*.yaml): its matcher and filter sections; the others do not apply here.
 std::string loadYaml(const std::string& path, es::MatcherParams& m, es::PostFilterParams& f) {
-  YAML::Node root;
-  try {
-    root = YAML::LoadFile(path);
-  } catch (const std::exception& e) {
-    return path + ": " + e.what();
-  }
-  for (const char* sec : {"matcher", "filter"}) {
-    if (!root[sec]) continue;
-    for (const auto& kv : root[sec]) {
-      const std::string err = setField(m, f, std::string(sec) + "." + kv.first.as<std::string>(),
-                                       kv.second.as<std::string>());
-      if (!err.empty()) return path + ": " + err;
-    }
-  }
+  es::PipelineParams pp;
+  pp.matcher = m;
+  pp.filter = f;
+  const std::string err = es::loadPipelineParams(path, pp);
+  if (!err.empty()) return err;
+  m = pp.matcher;
+  f = pp.filter;
   return "";
 }
 
