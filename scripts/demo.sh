@@ -222,4 +222,4 @@ for f in disparity_color.png coverage.png cloud.png rviz.png left_rect.png cloud
          invivo/disparity_ours.png invivo/coverage_ours.png; do
   [ -e "$OUT/$f" ] && printf '  %-20s %s\n' "$f" "$(du -h "$OUT/$f" | cut -f1)"
 done
-echo "[demo] replay it in rviz: roslaunch $ES_ROOT/launch/playback.launch bag:=$OUT/synthetic.bag rviz:=true"
+echo "[demo] replay it in rviz: roslaunch $ES_ROOT/launch/playback.launch bag:=$OUT/synthetic.bag rviz:=true min_disparity:=$DMIN max_disparity:=$DMAX"
