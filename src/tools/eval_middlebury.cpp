@@ -85,6 +85,10 @@ std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::s
         m.edge_verify_radius_px = std::stoi(v);
       else if (name == "edge_verify_min_ncc")
         m.edge_verify_min_ncc = std::stod(v);
+      else if (name == "edge_support_share")
+        m.edge_support_share = std::stod(v);
+      else if (name == "edge_support_radius_px")
+        m.edge_support_radius_px = std::stoi(v);
       else
         return "unknown key " + key;
     } else if (sec == "filter") {
