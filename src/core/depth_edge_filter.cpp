@@ -17,6 +17,7 @@
 #include <vector>
 
 #include "depth_edge_second_chance.hpp"
+#include "endo_stereo/core/post_filter.hpp"
 #include "simd.hpp"
 
 namespace endo_stereo {
@@ -171,6 +172,19 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   // pixels, and the blocks' lists are joined in row order (the order a serial pass gives).
   std::vector<std::vector<cv::Point>> by_level(num_levels);
   std::vector<size_t> level_count(num_levels, 0);
+  // The map the test looks at: with edge_support_share > 0, the accepted disparities without a
+  // surface's support (the outlier filter's count, window 2 edge_support_radius_px + 1,
+  // tolerance edge_disparity_jump_px) left out.
+  cv::Mat supported = out.disparity;
+  if (on && mp.edge_support_share > 0.0) {
+    PostFilterParams sp;
+    sp.outlier_window_px = 2 * mp.edge_support_radius_px + 1;
+    sp.outlier_disparity_tol_px = mp.edge_disparity_jump_px;
+    sp.outlier_min_share = mp.edge_support_share;
+    supported = out.disparity.clone();
+    cv::Mat no_code;
+    removeIsolatedOutliers(supported, no_code, sp);
+  }
   {
     std::vector<std::vector<std::vector<cv::Point>>> block_lists(
         num_blocks, std::vector<std::vector<cv::Point>>(num_levels));
@@ -179,7 +193,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
       std::vector<uint8_t> sel(W + 8, 0);
       for (int blk = rg.start; blk < rg.end; ++blk) {
         for (int y = blk * kRowBlock; y < std::min(H, (blk + 1) * kRowBlock); ++y) {
-          boundsRow(out.disparity.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
+          boundsRow(supported.ptr<float>(y), W, lo_src.ptr<float>(y), hi_src.ptr<float>(y));
           const uint8_t* k = window_idx.ptr<uint8_t>(y);
           block_first[blk] += acceptedRow(out.code.ptr<uint8_t>(y), k, W, sel.data());
           // The larger windows' pixels are few.

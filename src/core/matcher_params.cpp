@@ -66,6 +66,10 @@ std::string MatcherParams::validate() const {
         << " must be in [0, 6] (0 = off)";
   } else if (!(edge_verify_min_ncc >= -1.0 && edge_verify_min_ncc <= 1.0)) {
     msg << "matcher.edge_verify_min_ncc = " << edge_verify_min_ncc << " must be in [-1, 1]";
+  } else if (!(edge_support_share >= 0.0 && edge_support_share <= 1.0)) {
+    msg << "matcher.edge_support_share = " << edge_support_share << " must be in [0, 1] (0 = off)";
+  } else if (edge_support_radius_px < 1 || edge_support_radius_px > 8) {
+    msg << "matcher.edge_support_radius_px = " << edge_support_radius_px << " must be in [1, 8]";
   }
   return msg.str();
 }

@@ -188,6 +188,9 @@ const std::vector<Entry>& table() {
                       &MatcherParams::edge_verify_radius_px));
     t.push_back(field("matcher", "edge_verify_min_ncc", &PP::matcher,
                       &MatcherParams::edge_verify_min_ncc));
+    t.push_back(field("matcher", "edge_support_share", &PP::matcher, &MatcherParams::edge_support_share));
+    t.push_back(field("matcher", "edge_support_radius_px", &PP::matcher,
+                      &MatcherParams::edge_support_radius_px));
     // --- filter ----------------------------------------------------------------------------------
     t.push_back(
         field("filter", "remove_outliers", &PP::filter, &PostFilterParams::remove_outliers));

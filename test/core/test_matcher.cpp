@@ -14,6 +14,8 @@
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/reference_matcher.hpp"
 #include "synthetic_scene.hpp"
+// The depth-edge filter on its own, on hand-made maps with exact answers (a core-private header).
+#include "../../src/core/depth_edge_filter.hpp"
 
 namespace endo_stereo {
 namespace {
@@ -573,12 +575,12 @@ TEST_F(MatcherTest, EdgeVerifyKeepsTrueForegroundNextToAnEdge) {
   const EdgeCounts flagged_only = runEdgeScene(e, 0, 2.0);
   const EdgeCounts verified = runEdgeScene(e, 4, 2.0);
   // The map-only test rejects the foreground band 3..6 px inside the block's lower edge almost
-  // entirely (measured 11 of 240 kept); the second chance keeps a good part of it (measured 72):
+  // entirely (measured 0 of 240 kept); the second chance keeps a good part of it (measured 72):
   // windows wholly inside the block confirm its disparity against the background's. Bounds leave
   // room for small changes of the texture generator, not for losing the effect.
   EXPECT_LT(flagged_only.fg_band_kept, 30);
   EXPECT_GT(verified.fg_band_kept, 50);
-  // Overall it gives back many correct pixels (measured +924) ...
+  // Overall it gives back many correct pixels (measured +1979) ...
   EXPECT_GT(verified.correct, flagged_only.correct + 500);
   // ... and no wrong one.
   EXPECT_LE(verified.wrong, flagged_only.wrong);
@@ -632,6 +634,84 @@ TEST_F(MatcherTest, EdgeVerifyValidateNamesTheBadField) {
   ok.edge_verify_radius_px = 6;
   ok.edge_verify_min_ncc = -1.0;
   EXPECT_EQ(ok.validate(), "");
+}
+
+// ---------------------------------------------------------------------------------------------
+// Support of the edge test's disparities (MatcherParams::edge_support_*), on hand-made maps: every
+// pixel accepted with the first window (7 px; margin 5: the test looks 3 + 5 = 8 px around), the
+// second chance off (the images are then not read).
+// ---------------------------------------------------------------------------------------------
+struct EdgeMap {
+  MatchResult r;
+  cv::Mat window_idx;
+  explicit EdgeMap(const cv::Mat& disparity) {
+    r.disparity = disparity.clone();
+    r.confidence = cv::Mat(disparity.size(), CV_32F, cv::Scalar(1));
+    r.code = cv::Mat(disparity.size(), CV_8U, cv::Scalar(kCodeAcceptedBase));
+    window_idx = cv::Mat(disparity.size(), CV_8U, cv::Scalar(0));
+  }
+  // Runs the filter; returns the number of pixels it rejected.
+  int filter(double support_share) {
+    MatcherParams p;
+    p.edge_verify_radius_px = 0;
+    p.edge_disparity_jump_px = 2.0;
+    p.edge_disparity_jump_above_px = 4.0;
+    p.edge_margin_px = 5;
+    p.edge_support_share = support_share;
+    p.edge_support_radius_px = 2;
+    const cv::Mat no_image;
+    cv::Mat lo_src, hi_src, lo, hi, reject;
+    rejectEdgeStraddlers(p, no_image, no_image, 1, window_idx, r, lo_src, hi_src, lo, hi, reject);
+    return cv::countNonZero(r.code == static_cast<int>(kCodeRejectEdge));
+  }
+};
+
+TEST_F(MatcherTest, EdgeSupportAnIsolatedWrongDisparityRejectsOnlyItself) {
+  // A flat surface at disparity 10 with one wrong pixel at 3 (a speck of a highlight, say).
+  cv::Mat d(40, 60, CV_32F, cv::Scalar(10));
+  d.at<float>(20, 30) = 3.f;
+  EdgeMap without(d), with(d);
+  // Without support every pixel within 8 px of the speck sees a disparity 7 px below its own:
+  // the 17 x 17 square is rejected, the speck itself too (the surface lies 7 > 4 px above it).
+  EXPECT_EQ(without.filter(0.0), 17 * 17);
+  // With it the speck (no neighbour of its 5 x 5 square within 2 px) is no depth edge: only the
+  // speck is rejected, judged against the surface around it.
+  EXPECT_EQ(with.filter(0.4), 1);
+  EXPECT_EQ(with.r.code.at<uint8_t>(20, 30), kCodeRejectEdge);
+  EXPECT_TRUE(std::isnan(with.r.disparity.at<float>(20, 30)));
+  EXPECT_FLOAT_EQ(with.r.disparity.at<float>(20, 31), 10.f);
+}
+
+TEST_F(MatcherTest, EdgeSupportKeepsTheTestAtAnInstrumentEdge) {
+  // An instrument (disparity 20, columns 30..59) over tissue (10, columns 0..29): a true depth
+  // edge, both sides supported surfaces.
+  cv::Mat d(40, 60, CV_32F, cv::Scalar(10));
+  d(cv::Rect(30, 0, 30, 40)).setTo(20);
+  EdgeMap without(d), with(d);
+  // The 8 columns on each side of the edge are rejected (instrument: 10 px below within reach;
+  // tissue: 10 px above), with or without support: 16 columns of 40 rows.
+  EXPECT_EQ(without.filter(0.0), 16 * 40);
+  EXPECT_EQ(with.filter(0.4), 16 * 40);
+  EXPECT_EQ(cv::countNonZero(with.r.code(cv::Rect(22, 0, 16, 40)) ==
+                             static_cast<int>(kCodeRejectEdge)),
+            16 * 40);
+}
+
+TEST_F(MatcherTest, EdgeSupportValidateNamesTheBadField) {
+  MatcherParams p;
+  p.edge_support_share = 1.5;
+  EXPECT_NE(p.validate().find("edge_support_share"), std::string::npos);
+  p = MatcherParams{};
+  p.edge_support_share = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_NE(p.validate().find("edge_support_share"), std::string::npos);
+  p = MatcherParams{};
+  p.edge_support_radius_px = 0;
+  EXPECT_NE(p.validate().find("edge_support_radius_px"), std::string::npos);
+  p.edge_support_radius_px = 9;
+  EXPECT_NE(p.validate().find("edge_support_radius_px"), std::string::npos);
+  p.edge_support_radius_px = 8;
+  p.edge_support_share = 1.0;
+  EXPECT_EQ(p.validate(), "");
 }
 
 }  // namespace

@@ -98,9 +98,9 @@ struct MatcherParams {
   double edge_disparity_jump_px = 2.0;
   /// The same test for accepted disparities above the pixel's own (it may carry the farther
   /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
-  double edge_disparity_jump_above_px = 6.0;
+  double edge_disparity_jump_above_px = 4.0;
   /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16].
-  int edge_margin_px = 3;
+  int edge_margin_px = 5;
   /// Second chance for pixels the edge test flags (ours; 0 = off: every flagged pixel is
   /// rejected). Competitors are the disparities measured on the other side of the jump (those of
   /// the neighbours that triggered the test, rounded, +-1 px). A flagged pixel is kept when EVERY
@@ -113,6 +113,15 @@ struct MatcherParams {
   int edge_verify_radius_px = 4;
   /// Least ZNCC of the pixel's own disparity in each verifying window, [-1, 1].
   double edge_verify_min_ncc = 0.5;
+  /// Which disparities the edge test looks at (ours; 0 = all accepted ones): only those with the
+  /// support of a surface, i.e. at least this share of the (2 edge_support_radius_px + 1)^2
+  /// pixels around them accepted within edge_disparity_jump_px of them (the pixel itself not
+  /// counted, the share of the full square also at the border, as the outlier filter counts).
+  /// One isolated wrong disparity is no depth edge and does not reject the good pixels around
+  /// it (it meets the outlier filter later). Share in [0, 1].
+  double edge_support_share = 0.4;
+  /// Radius of the support square, px, in [1, 8].
+  int edge_support_radius_px = 2;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;
