@@ -144,7 +144,7 @@ def main():
     # Uncommitted changes to anything but this run's own outputs make the commit an approximation.
     outputs = ("BENCHMARKS.md", "docs/benchmark_results.json", "docs/precision_density.csv",
                "docs/precision_density.png", "docs/bench_invivo.png", "docs/bench_generated.png")
-    dirty = any(line[3:] not in outputs
+    dirty = any(line.split(None, 1)[-1] not in outputs
                 for line in git("status", "--porcelain", "--untracked-files=no").splitlines())
     page = Page(commands, commit, dirty)
     ev = {k: load(os.path.join(a.out, k, "evaluation.json"))
