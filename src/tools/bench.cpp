@@ -37,12 +37,16 @@
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/params_io.hpp"
 #include "json_writer.hpp"
+#include "machine_info.hpp"
 #include "surgical_scene.hpp"
 #include "synthetic_scene.hpp"
 
 extern char** environ;
 
 namespace {
+
+using endo_stereo::tools::cpuModel;
+using endo_stereo::tools::loadAverage;
 
 using endo_stereo::tools::JsonWriter;
 using Clock = std::chrono::steady_clock;
@@ -76,13 +80,6 @@ double processCpuMs() {
   timespec ts{};
   ::clock_gettime(CLOCK_PROCESS_CPUTIME_ID, &ts);
   return ts.tv_sec * 1e3 + ts.tv_nsec * 1e-6;
-}
-
-std::string loadAverage() {
-  std::ifstream in("/proc/loadavg");
-  std::string a, b, c;
-  in >> a >> b >> c;
-  return a + " " + b + " " + c;
 }
 
 double msSince(Clock::time_point t) {
@@ -483,20 +480,6 @@ double probePeakRss(const std::string& out_file, const std::vector<std::string>&
   std::ifstream(out_file) >> kib;
   std::remove(out_file.c_str());
   return kib > 0 ? kib / 1024.0 : std::numeric_limits<double>::quiet_NaN();
-}
-
-// --- machine ---------------------------------------------------------------------------------
-
-std::string cpuModel() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("model name", 0) == 0) {
-      const size_t colon = line.find(':');
-      if (colon != std::string::npos) return line.substr(colon + 2);
-    }
-  }
-  return "unknown";
 }
 
 }  // namespace

@@ -33,8 +33,12 @@
 #include "endo_stereo/core/sequence_evaluation.hpp"
 #include "frame_sources.hpp"
 #include "json_writer.hpp"
+#include "machine_info.hpp"
 
 namespace {
+
+using endo_stereo::tools::cpuModel;
+using endo_stereo::tools::loadAverage;
 
 using endo_stereo::tools::Frame;
 using endo_stereo::tools::FrameSource;
@@ -302,25 +306,6 @@ struct Stream {
   cv::Mat picture_disparity, picture_jumps;
   explicit Stream(const endo_stereo::SequenceMetricsParams& p) : metrics(p) {}
 };
-
-std::string cpuModel() {
-  std::ifstream in("/proc/cpuinfo");
-  std::string line;
-  while (std::getline(in, line)) {
-    if (line.rfind("model name", 0) == 0) {
-      const size_t colon = line.find(':');
-      if (colon != std::string::npos) return line.substr(colon + 2);
-    }
-  }
-  return "unknown";
-}
-
-std::string loadAverage() {
-  std::ifstream in("/proc/loadavg");
-  std::string a, b, c;
-  in >> a >> b >> c;
-  return a + " " + b + " " + c;
-}
 
 // --- pictures --------------------------------------------------------------------------------
 
