@@ -26,6 +26,7 @@
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/core/pipeline.hpp"
 #include "json_writer.hpp"
+#include "tool_params.hpp"
 
 namespace {
 
@@ -524,20 +525,11 @@ int run(int argc, char** argv) {
   endo_stereo::PipelineParams params;
   params.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
   params.output.point_cloud = false;
-  std::string err;
-  if (!o.params_file.empty()) {
-    err = endo_stereo::loadPipelineParams(o.params_file, params);
-    if (!err.empty()) {
-      std::cerr << "endo_stereo_cli: --params: " << err << "\n";
-      return kExitUsage;
-    }
-  }
-  for (const std::string& s : o.overrides) {
-    err = endo_stereo::applyParamOverride(params, s);
-    if (!err.empty()) {
-      std::cerr << "endo_stereo_cli: --set: " << err << "\n";
-      return kExitUsage;
-    }
+  std::string err =
+      endo_stereo::tools::applyPresetAndOverrides(o.params_file, o.overrides, params);
+  if (!err.empty()) {
+    std::cerr << "endo_stereo_cli: " << err << "\n";
+    return kExitUsage;
   }
   if (o.has_min) params.matcher.min_disparity = o.min_disparity;
   if (o.has_max) params.matcher.max_disparity = o.max_disparity;

@@ -33,6 +33,7 @@
 #include "endo_stereo/core/sequence_evaluation.hpp"
 #include "frame_sources.hpp"
 #include "json_writer.hpp"
+#include "tool_params.hpp"
 #include "machine_info.hpp"
 
 namespace {
@@ -544,20 +545,11 @@ int run(int argc, char** argv) {
   // Our pipeline's parameters: as endo_stereo_cli (built-in defaults, input already rectified).
   endo_stereo::PipelineParams params;
   params.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
-  std::string err;
-  if (!o.params_file.empty()) {
-    err = endo_stereo::loadPipelineParams(o.params_file, params);
-    if (!err.empty()) {
-      std::cerr << "endo_stereo_evaluate: --params: " << err << "\n";
-      return kExitUsage;
-    }
-  }
-  for (const std::string& s : o.overrides) {
-    err = endo_stereo::applyParamOverride(params, s);
-    if (!err.empty()) {
-      std::cerr << "endo_stereo_evaluate: --set: " << err << "\n";
-      return kExitUsage;
-    }
+  std::string err =
+      endo_stereo::tools::applyPresetAndOverrides(o.params_file, o.overrides, params);
+  if (!err.empty()) {
+    std::cerr << "endo_stereo_evaluate: " << err << "\n";
+    return kExitUsage;
   }
   params.matcher.min_disparity = o.min_disparity;
   params.matcher.max_disparity = o.max_disparity;
