@@ -252,6 +252,9 @@ const std::vector<Entry>& table() {
     t.push_back(field("rectify", "quality_warn_px", &PP::rectify, &RectifyParams::quality_warn_px));
     t.push_back(field("rectify", "quality_max_features", &PP::rectify,
                       &RectifyParams::quality_max_features));
+    t.push_back(field("rectify", "row_correction", &PP::rectify, &RectifyParams::row_correction));
+    t.push_back(field("rectify", "row_correction_min_matches", &PP::rectify,
+                      &RectifyParams::row_correction_min_matches));
     // --- temporal --------------------------------------------------------------------------------
     t.push_back(field("temporal", "enabled", &PP::temporal, &TemporalParams::enabled));
     t.push_back(

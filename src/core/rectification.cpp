@@ -91,6 +91,13 @@ struct StereoRectifier::Impl {
 
   RectifiedGeometry geometry;
   RectificationQuality quality;
+  // Row correction (RectifyParams::row_correction): the offset plane in use, for the
+  // rectification of generation row_generation; the maps that apply it, cached.
+  bool have_row_model = false;
+  cv::Vec3d row_model{0, 0, 0};
+  uint64_t row_generation = 0;
+  cv::Mat row_map_x, row_map_y, row_shifted;
+  cv::Vec3d row_map_model{0, 0, 0};
   uint64_t generation = 0;
   int64_t frame_index = 0;
   std::string active;
@@ -531,6 +538,20 @@ struct StereoRectifier::Impl {
       q.message = m.str();
     }
     quality = q;
+    if (q.valid && q.row_offset_matches >= params.row_correction_min_matches &&
+        (active == "calibrated" || active == "pass_through")) {
+      have_row_model = true;
+      row_model = q.row_offset;
+      row_generation = generation;
+    }
+  }
+
+  // Calibrated / pass-through, after the quality measure (which sees the uncorrected pair): the
+  // right view's rows shifted by the latest fitted offset plane of this rectification.
+  void correctRows(cv::Mat& right_rect) {
+    if (!params.row_correction || !have_row_model || row_generation != generation) return;
+    shiftRows(right_rect, row_model, row_shifted, row_map_x, row_map_y, row_map_model);
+    row_shifted.copyTo(right_rect);
   }
 
   bool measureNow() const {
@@ -727,6 +748,7 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
           left_bgr.copyTo(left_rect_bgr);
         }
         if (s.measureNow()) s.measureQuality(left_rect_gray, right_rect_gray);
+        s.correctRows(right_rect_gray);
         break;
       }
       case RectifyMode::kCalibrated: {
@@ -749,6 +771,7 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
         s.remapPair(left_gray, right_gray, left_bgr, left_rect_gray, right_rect_gray,
                     left_rect_bgr);
         if (s.measureNow()) s.measureQuality(left_rect_gray, right_rect_gray);
+        s.correctRows(right_rect_gray);
         break;
       }
       case RectifyMode::kUncalibrated:

@@ -88,6 +88,55 @@ ES_KERNEL void patchSums(const float* band, int stride, const float* lp, int blo
 
 }  // namespace
 
+int fitRowOffset(const std::vector<cv::Vec3d>& matches, cv::Vec3d* model) {
+  *model = cv::Vec3d(0, 0, 0);
+  if (matches.size() < 3) return 0;
+  // Least squares for offset = c0 + c1 x + c2 y, twice: the second fit keeps the matches within
+  // max(0.5 px, 3 x the median absolute residual) of the first (a patch on a specular highlight
+  // or an instrument can match a wrong row). x and y centred and scaled for conditioning.
+  double mx = 0, my = 0;
+  for (const cv::Vec3d& m : matches) {
+    mx += m[0];
+    my += m[1];
+  }
+  mx /= double(matches.size());
+  my /= double(matches.size());
+  double s = 1.0;
+  for (const cv::Vec3d& m : matches) s = std::max({s, std::abs(m[0] - mx), std::abs(m[1] - my)});
+  std::vector<uint8_t> use(matches.size(), 1);
+  cv::Vec3d c(0, 0, 0);  // in the centred, scaled coordinates
+  int used = 0;
+  for (int pass = 0; pass < 2; ++pass) {
+    cv::Matx33d A = cv::Matx33d::zeros();
+    cv::Vec3d b(0, 0, 0);
+    used = 0;
+    for (size_t i = 0; i < matches.size(); ++i) {
+      if (!use[i]) continue;
+      const cv::Vec3d r(1.0, (matches[i][0] - mx) / s, (matches[i][1] - my) / s);
+      A += r * r.t();
+      b += r * matches[i][2];
+      ++used;
+    }
+    // A layout without spread in x or y (all matches on one line) leaves A singular: no fit.
+    cv::Mat sol;
+    if (used < 3 || !cv::solve(cv::Mat(A), cv::Mat(b), sol, cv::DECOMP_LU)) return 0;
+    c = cv::Vec3d(sol.at<double>(0), sol.at<double>(1), sol.at<double>(2));
+    if (pass == 1) break;
+    std::vector<double> res(matches.size());
+    for (size_t i = 0; i < matches.size(); ++i) {
+      res[i] = std::abs(matches[i][2] - (c[0] + c[1] * (matches[i][0] - mx) / s +
+                                         c[2] * (matches[i][1] - my) / s));
+    }
+    std::vector<double> sorted = res;
+    std::nth_element(sorted.begin(), sorted.begin() + sorted.size() / 2, sorted.end());
+    const double keep = std::max(0.5, 3.0 * sorted[sorted.size() / 2]);
+    for (size_t i = 0; i < matches.size(); ++i) use[i] = res[i] <= keep;
+  }
+  // Back to image coordinates: c0 + c1 (x - mx) / s + c2 (y - my) / s.
+  *model = cv::Vec3d(c[0] - c[1] * mx / s - c[2] * my / s, c[1] / s, c[2] / s);
+  return used;
+}
+
 RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
                                                 int min_disparity, int max_disparity,
                                                 int max_patches) {
@@ -162,6 +211,7 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
   const int target = max_patches > 0 ? max_patches : (W * H) / (16 * 16);
   const int cell = std::max(16, int(std::sqrt(double(W) * H / std::max(1, target))));
   std::vector<double> offsets;
+  std::vector<cv::Vec3d> signed_offsets;  // right x, y, signed offset: the row-offset fit's data
   int textured = 0;  // cells with a textured patch
   std::vector<float> lp(size_t(n), 0.f);
   std::vector<float> ncc;
@@ -255,6 +305,7 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
         if (den < 0.0) off += std::clamp(0.5 * (a - c) / den, -0.5, 0.5);
       }
       offsets.push_back(std::abs(off));
+      signed_offsets.push_back(cv::Vec3d(double(bx - (d_lo + bd)), double(by), off));
     }
   }
   if (offsets.size() < 8) {
@@ -275,8 +326,27 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
   }
   q.num_matches = int(offsets.size());
   detail::offsetStatistics(offsets, &q.median_offset_px, &q.p90_offset_px);
+  q.row_offset_matches = fitRowOffset(signed_offsets, &q.row_offset);
   q.valid = true;
   return q;
+}
+
+void shiftRows(const cv::Mat& right, const cv::Vec3d& model, cv::Mat& out, cv::Mat& map_x,
+               cv::Mat& map_y, cv::Vec3d& map_model) {
+  if (map_x.size() != right.size() || map_y.size() != right.size() || map_model != model) {
+    map_x.create(right.size(), CV_32F);
+    map_y.create(right.size(), CV_32F);
+    for (int y = 0; y < right.rows; ++y) {
+      float* mx = map_x.ptr<float>(y);
+      float* my = map_y.ptr<float>(y);
+      for (int x = 0; x < right.cols; ++x) {
+        mx[x] = float(x);
+        my[x] = float(y + model[0] + model[1] * x + model[2] * y);
+      }
+    }
+    map_model = model;
+  }
+  cv::remap(right, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
 }
 
 }  // namespace endo_stereo

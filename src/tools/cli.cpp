@@ -492,6 +492,13 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
       j.key("p90_offset_px").value(f.quality.p90_offset_px);
       j.key("num_matches").value(f.quality.num_matches);
       j.key("measured_on_frame").value(f.quality.frame_index);
+      if (f.quality.row_offset_matches > 0) {
+        // the fitted offset plane c0 + c1 x + c2 y (px) and its matches (rectify.row_correction)
+        j.key("row_offset_px").beginArray();
+        for (int i = 0; i < 3; ++i) j.value(f.quality.row_offset[i]);
+        j.endArray();
+        j.key("row_offset_matches").value(f.quality.row_offset_matches);
+      }
       j.key("warning").value(f.quality.warning);
     }
     if (f.quality.misaligned) j.key("misaligned").value(true);

@@ -132,6 +132,15 @@ struct RectifyParams {
   /// Most patches of the quality figure, >= 0 (0 = one per 16 x 16 px;
   /// measureRowAlignmentPatches). Uncalibrated mode, while pooling, uses its SIFT matches.
   int quality_max_features = 300;
+  /// Row correction (ours; calibrated and pass-through modes): shift the right view's rows by
+  /// the vertical offset the quality figure measured, fitted as a plane over the image
+  /// (RectificationQuality::row_offset), so that a calibration that leaves the views' rows a
+  /// fraction of a pixel apart does not cost matches. Applied from the first measurement on and
+  /// updated with each one (measured on the uncorrected pair, so quality reports the
+  /// calibration). docs/method.md, section 1.
+  bool row_correction = true;
+  /// The least number of patch matches a fitted offset needs before it is applied, >= 3.
+  int row_correction_min_matches = 30;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
   std::string validate() const;
@@ -149,6 +158,12 @@ struct RectificationQuality {
   /// is then false and warning true.
   bool misaligned = false;
   bool warning = false;  ///< median_offset_px > RectifyParams::quality_warn_px, or misaligned
+  /// Patch measure: the signed vertical offset of the right view (its matching row minus the
+  /// left row, px) as a plane over the right image, offset = c0 + c1 x + c2 y, fitted to the
+  /// matches by least squares with outliers dropped; row_offset_matches = the matches it rests on
+  /// (0: none fitted).
+  cv::Vec3d row_offset{0, 0, 0};
+  int row_offset_matches = 0;
   /// Uncalibrated: the rectification was estimated (false: "could not be estimated"). True in
   /// the other modes.
   bool estimated = false;
@@ -301,7 +316,8 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
  * ZNCC is at least 0.8, 0.05 above the best match 3 or more disparities away, and not cut by the
  * disparity range. Its vertical offset is refined to sub-pixel by a parabola; offsets beyond 8
  * px find no match: when most textured patches find none, misaligned is set (and valid is
- * false). Fills valid/median/p90/num_matches (valid needs 8 matches). Uses no cv::parallel_for_
+ * false). Fills valid/median/p90/num_matches (valid needs 8 matches) and the fitted row offset
+ * (fitRowOffset; row_offset, row_offset_matches). Uses no cv::parallel_for_
  * (safe on a background thread: OpenCV runs parallel_for_ serially while another thread is
  * inside one). The rectifier measures with this in every mode, except while uncalibrated mode
  * pools SIFT matches for an estimate (it then uses those matches).
@@ -309,5 +325,22 @@ RectificationQuality measureRowAlignment(const cv::Mat& left_gray, const cv::Mat
 RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
                                                 int min_disparity, int max_disparity,
                                                 int max_patches);
+
+/**
+ * Fits offset = c0 + c1 x + c2 y to matches (x, y, signed vertical offset) by least squares,
+ * then again without the matches further than max(0.5 px, 3 x the median absolute residual) from
+ * the first fit. @p model gets (c0, c1, c2); returns the number of matches of the final fit (0
+ * with fewer than 3 or a degenerate layout, model then zero).
+ */
+int fitRowOffset(const std::vector<cv::Vec3d>& matches, cv::Vec3d* model);
+
+/**
+ * Shifts the rows of @p right by the offset plane (c0 + c1 x + c2 y, px; the right row that
+ * matches left row y is y + offset): out(x, y) = right(x, y + offset(x, y)), bilinear, the
+ * border row repeated. @p map_x / @p map_y cache the maps (rebuilt when @p map_model or the size
+ * differs). out may not alias right.
+ */
+void shiftRows(const cv::Mat& right, const cv::Vec3d& model, cv::Mat& out, cv::Mat& map_x,
+               cv::Mat& map_y, cv::Vec3d& map_model);
 
 }  // namespace endo_stereo
