@@ -255,6 +255,8 @@ const std::vector<Entry>& table() {
     t.push_back(field("rectify", "row_correction", &PP::rectify, &RectifyParams::row_correction));
     t.push_back(field("rectify", "row_correction_min_matches", &PP::rectify,
                       &RectifyParams::row_correction_min_matches));
+    t.push_back(field("rectify", "row_correction_min_px", &PP::rectify,
+                      &RectifyParams::row_correction_min_px));
     // --- temporal --------------------------------------------------------------------------------
     t.push_back(field("temporal", "enabled", &PP::temporal, &TemporalParams::enabled));
     t.push_back(

@@ -550,6 +550,11 @@ struct StereoRectifier::Impl {
   // right view's rows shifted by the latest fitted offset plane of this rectification.
   void correctRows(cv::Mat& right_rect) {
     if (!params.row_correction || !have_row_model || row_generation != generation) return;
+    const cv::Vec3d& m = row_model;
+    const double w = right_rect.cols - 1, h = right_rect.rows - 1;
+    const double corner = std::max({std::abs(m[0]), std::abs(m[0] + m[1] * w),
+                                    std::abs(m[0] + m[2] * h), std::abs(m[0] + m[1] * w + m[2] * h)});
+    if (corner < params.row_correction_min_px) return;
     shiftRows(right_rect, row_model, row_shifted, row_map_x, row_map_y, row_map_model);
     row_shifted.copyTo(right_rect);
   }

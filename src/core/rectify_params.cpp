@@ -94,6 +94,9 @@ std::string RectifyParams::validate() const {
   if (quality_stride < 0) return bad("quality_stride", ">= 0 (0 = never)", quality_stride);
   if (!(quality_warn_px > 0.0)) return bad("quality_warn_px", "> 0", quality_warn_px);
   if (quality_max_features < 0) return bad("quality_max_features", ">= 0", quality_max_features);
+  if (!(row_correction_min_px >= 0.0) || !std::isfinite(row_correction_min_px)) {
+    return bad("row_correction_min_px", ">= 0", row_correction_min_px);
+  }
   if (row_correction_min_matches < 3) {
     return bad("row_correction_min_matches", ">= 3", row_correction_min_matches);
   }

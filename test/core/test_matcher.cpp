@@ -186,6 +186,7 @@ TEST_F(MatcherTest, GrowsWindowsWhereTextureIsPoor) {
   };
   MatcherParams p = range(0, 31);
   p.edge_disparity_jump_px = 0.0;  // the growth itself is under test, not what our edge step keeps
+  p.window_min_px = 7;             // from the paper's first window (the figures below are for it)
   RobustMatcher m(p, noFilter());
   MatchResult r;
   m.compute(makeSyntheticScene(rich).left, makeSyntheticScene(rich).right, r);
@@ -653,6 +654,7 @@ struct EdgeMap {
   // Runs the filter; returns the number of pixels it rejected.
   int filter(double support_share) {
     MatcherParams p;
+    p.window_min_px = 7;
     p.edge_verify_radius_px = 0;
     p.edge_disparity_jump_px = 2.0;
     p.edge_disparity_jump_above_px = 4.0;

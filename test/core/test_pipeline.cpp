@@ -496,6 +496,7 @@ TEST_F(PipelineTest, BackgroundQualityMeasurementGivesTheInlineFigureLater) {
   RectifyParams rp;
   rp.mode = RectifyMode::kCalibrated;
   rp.quality_stride = 2;
+  rp.row_correction = false;  // first the measurement alone; the correction it feeds: below
   StereoRectifier inline_rect(rp), background(rp);
   ASSERT_EQ(inline_rect.setCalibration(scene.calibration()), "");
   ASSERT_EQ(background.setCalibration(scene.calibration()), "");
@@ -515,6 +516,24 @@ TEST_F(PipelineTest, BackgroundQualityMeasurementGivesTheInlineFigureLater) {
   EXPECT_EQ(q.num_matches, expected.num_matches);
   EXPECT_EQ(q.median_offset_px, expected.median_offset_px);
   EXPECT_EQ(q.p90_offset_px, expected.p90_offset_px);
+
+  // With the row correction (applied whatever its size here), the background rectifier applies
+  // the plane its measurement fitted once it is recorded: the next frame is the inline one's.
+  rp.row_correction = true;
+  rp.row_correction_min_px = 0.0;
+  StereoRectifier inline_corr(rp), background_corr(rp);
+  ASSERT_EQ(inline_corr.setCalibration(scene.calibration()), "");
+  ASSERT_EQ(background_corr.setCalibration(scene.calibration()), "");
+  background_corr.setAsyncQuality(true);
+  for (int frame = 0; frame < 2; ++frame) {
+    ASSERT_TRUE(inline_corr.rectify(left_gray, right_gray, cv::Mat(), l1, r1, c1, &error)) << error;
+    ASSERT_TRUE(background_corr.rectify(left_gray, right_gray, cv::Mat(), l2, r2, c2, &error))
+        << error;
+    if (frame == 0) background_corr.setAsyncQuality(false);  // its measurement recorded
+  }
+  ASSERT_GT(inline_corr.quality().row_offset_matches, 0);
+  EXPECT_EQ(background_corr.quality().row_offset, inline_corr.quality().row_offset);
+  EXPECT_EQ(cv::norm(r1, r2, cv::NORM_INF), 0.0);
 }
 
 TEST(CoarseSeed, HalfRangeAndUpsamplingByTwo) {
@@ -657,10 +676,13 @@ TEST_F(PipelineTest, TheFirstFrameSearchesNarrowedRangesAroundACoarseEstimate) {
     }
     return double(bad) / std::max(1, scored);
   };
-  // Measured: 81.6% of the pixels narrowed; density 82.3% against the full search's 84.3%; bad2
-  // 0 for both. Allowed: 75% narrowed, 3 points of density, 0.2% more bad2.
+  // Measured with the default 9 px first window: density 78.4% against the full search's 81.6%
+  // (3.2 points; 2.0 with a 7 px first window, whose larger share of border pixels weighs more
+  // on this 160 x 120 scene); bad2 0 for both. On the first real in-vivo frame the gap is 5.6
+  // points with the 9 px window, 10.5 with 7 px (endo_stereo_cli --first 1 --count 1, with and
+  // without --no-priors). Allowed: 75% narrowed, 4 points of density, 0.2% more bad2.
   EXPECT_GT(narrowed_share, 0.75);
-  EXPECT_GT(out.match.stats.density(), full.stats.density() - 0.03);
+  EXPECT_GT(out.match.stats.density(), full.stats.density() - 0.04);
   EXPECT_LE(bad2(out.match.disparity), bad2(full.disparity) + 0.002);
 }
 

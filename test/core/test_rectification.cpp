@@ -387,6 +387,17 @@ TEST_F(RectifyTest, RowCorrectionFitsAndRemovesAPlaneOfVerticalOffsets) {
   ASSERT_TRUE(unmeasured.rectify(left, right, cv::Mat(), lg, rg, lc, &err)) << err;
   EXPECT_EQ(cv::norm(rg, right, cv::NORM_INF), 0);
 
+  // Rows already aligned (no vertical offset): the fitted plane stays under
+  // row_correction_min_px (0.1 px) and the right view is not resampled.
+  cv::Mat aligned;
+  cv::warpAffine(left, aligned, cv::Matx23d(1, 0, -20, 0, 1, 0), left.size(), cv::INTER_CUBIC,
+                 cv::BORDER_REFLECT);
+  rp.quality_stride = 1;
+  StereoRectifier measured_aligned(rp);
+  ASSERT_TRUE(measured_aligned.rectify(left, aligned, cv::Mat(), lg, rg, lc, &err)) << err;
+  EXPECT_GT(measured_aligned.quality().row_offset_matches, 100);
+  EXPECT_EQ(cv::norm(rg, aligned, cv::NORM_INF), 0);
+
   // Too few matches for a plane (all on one row: no spread in y): no fit, no correction.
   std::vector<cv::Vec3d> one_row = {{10, 50, 0.5}, {60, 50, 0.5}, {200, 50, 0.6}, {250, 50, 0.4}};
   cv::Vec3d model;

@@ -49,8 +49,10 @@ struct MatcherParams {
   int min_disparity = 0;
   /// Largest disparity searched, px, inclusive; must be >= min_disparity.
   int max_disparity = 63;
-  /// Smallest window width, px; odd, >= 3.
-  int window_min_px = 7;
+  /// Smallest window width, px; odd, >= 3. Default 9 (paper: 7): on real in-vivo video a 7 px
+  /// window on smooth tissue gives a noisy peak that the depth-edge filter then rejects
+  /// (docs/method.md, section 5, has the figures; Middlebury is measured with it too).
+  int window_min_px = 9;
   /// Window growth step, px; even, >= 2 (keeps widths odd).
   int window_step_px = 4;
   /// Largest window width allowed, px, in [window_min_px, 32] (up to 32 x 32 the window sums are
@@ -80,7 +82,7 @@ struct MatcherParams {
   /// (docs/matcher_design.md): a larger window fattens across depth edges, and a narrowed range
   /// has lost the competitors that would expose a wrong peak. The temporal priors send a pixel
   /// that keeps failing back to the full range, where every window is tried.
-  int window_max_narrowed_px = 7;
+  int window_max_narrowed_px = 9;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
   /// Worker threads, 0..kMaxNumThreads; 0 = OpenCV's default. When > 0, cv::setNumThreads() is
@@ -99,8 +101,9 @@ struct MatcherParams {
   /// The same test for accepted disparities above the pixel's own (it may carry the farther
   /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
   double edge_disparity_jump_above_px = 4.0;
-  /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16].
-  int edge_margin_px = 5;
+  /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16]. 7 with the
+  /// 9 px first window (a wider window fattens further).
+  int edge_margin_px = 7;
   /// Second chance for pixels the edge test flags (ours; 0 = off: every flagged pixel is
   /// rejected). Competitors are the disparities measured on the other side of the jump (those of
   /// the neighbours that triggered the test, rounded, +-1 px). A flagged pixel is kept when EVERY

@@ -141,6 +141,10 @@ struct RectifyParams {
   bool row_correction = true;
   /// The least number of patch matches a fitted offset needs before it is applied, >= 3.
   int row_correction_min_matches = 30;
+  /// Applied only when the fitted plane reaches this offset at a corner of the image, px, >= 0:
+  /// below it the rows are as well aligned as the measure tells (its patches are good to about
+  /// 0.05 px), and a bilinear shift would only blur the right view.
+  double row_correction_min_px = 0.1;
 
   /// @return "" when valid, else a message naming the field and its accepted range.
   std::string validate() const;
