@@ -53,8 +53,10 @@ struct MatcherParams {
   /// window on smooth tissue gives a noisy peak that the depth-edge filter then rejects
   /// (docs/method.md, section 5, has the figures; Middlebury is measured with it too).
   int window_min_px = 9;
-  /// Window growth step, px; even, >= 2 (keeps widths odd).
-  int window_step_px = 4;
+  /// Window growth step, px; even, >= 2 (keeps widths odd). Default 6 (paper: 4): windows 9, 15,
+  /// 21, 27 reach as far as 9, 13, ..., 29 with four sizes instead of six (docs/method.md,
+  /// section 5).
+  int window_step_px = 6;
   /// Largest window width allowed, px, in [window_min_px, 32] (up to 32 x 32 the window sums are
   /// exact in float). Widths tried: min, min+step, ... <= max (at most 16 of them).
   int window_max_px = 30;
