@@ -210,8 +210,7 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
   // One patch per cell of a grid: the best-structured centre of the cell.
   const int target = max_patches > 0 ? max_patches : (W * H) / (16 * 16);
   const int cell = std::max(16, int(std::sqrt(double(W) * H / std::max(1, target))));
-  std::vector<double> offsets;
-  std::vector<cv::Vec3d> signed_offsets;  // right x, y, signed offset: the row-offset fit's data
+  std::vector<cv::Vec3d> matches;  // per reliable patch: right x, y, signed vertical offset
   int textured = 0;  // cells with a textured patch
   std::vector<float> lp(size_t(n), 0.f);
   std::vector<float> ncc;
@@ -304,15 +303,14 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
         const double den = a - 2.0 * b + c;
         if (den < 0.0) off += std::clamp(0.5 * (a - c) / den, -0.5, 0.5);
       }
-      offsets.push_back(std::abs(off));
-      signed_offsets.push_back(cv::Vec3d(double(bx - (d_lo + bd)), double(by), off));
+      matches.push_back(cv::Vec3d(double(bx - (d_lo + bd)), double(by), off));
     }
   }
-  if (offsets.size() < 8) {
+  if (matches.size() < 8) {
     std::ostringstream m;
-    m << "too few reliable patch matches to measure the rectification (" << offsets.size() << " of "
+    m << "too few reliable patch matches to measure the rectification (" << matches.size() << " of "
       << textured << " textured patches";
-    if (textured >= 32 && int(offsets.size()) * 4 < textured) {
+    if (textured >= 32 && int(matches.size()) * 4 < textured) {
       // Most textured patches found nothing within +-8 px rows and the disparity range: warn,
       // as for a large offset.
       m << "; rows misaligned by more than " << kPatchMaxDy
@@ -324,9 +322,11 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
     q.message = m.str();
     return q;
   }
-  q.num_matches = int(offsets.size());
+  q.num_matches = int(matches.size());
+  std::vector<double> offsets(matches.size());
+  for (size_t i = 0; i < matches.size(); ++i) offsets[i] = std::abs(matches[i][2]);
   detail::offsetStatistics(offsets, &q.median_offset_px, &q.p90_offset_px);
-  q.row_offset_matches = fitRowOffset(signed_offsets, &q.row_offset);
+  q.row_offset_matches = fitRowOffset(matches, &q.row_offset);
   q.valid = true;
   return q;
 }

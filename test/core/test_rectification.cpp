@@ -271,16 +271,22 @@ TEST_F(RectifyTest, QualityFlagsAWrongCalibration) {
   EXPECT_NE(qb.message.find("exceeds"), std::string::npos) << qb.message;
 }
 
-// The patch measure of the quality figure on a pair with a known vertical offset: a smoothed
-// random texture, the right view shifted 20 px left (disparity 20) and dy px down, sub-pixel.
-TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
-  cv::Mat noise(240, 320, CV_32F), tex;
-  cv::RNG rng(5);
+// A 320 x 240 smoothed random texture (uniform noise blurred by sigma 1.2 px, stretched to
+// 20..235), the left view of the patch-measure pairs below.
+cv::Mat smoothTexture(int seed) {
+  cv::Mat noise(240, 320, CV_32F), tex, out;
+  cv::RNG rng(seed);
   rng.fill(noise, cv::RNG::UNIFORM, 0.0, 255.0);
   cv::GaussianBlur(noise, tex, cv::Size(0, 0), 1.2);
   cv::normalize(tex, tex, 20, 235, cv::NORM_MINMAX);
-  cv::Mat left;
-  tex.convertTo(left, CV_8U);
+  tex.convertTo(out, CV_8U);
+  return out;
+}
+
+// The patch measure of the quality figure on a pair with a known vertical offset: a smoothed
+// random texture, the right view shifted 20 px left (disparity 20) and dy px down, sub-pixel.
+TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
+  const cv::Mat left = smoothTexture(5);
   for (const double dy : {0.0, 0.4, 1.5, 3.25, 7.0}) {
     const cv::Matx23d shift(1, 0, -20, 0, 1, dy);  // right(x, y) = left(x + 20, y - dy)
     cv::Mat right;
@@ -325,13 +331,7 @@ TEST_F(RectifyTest, PatchMeasureRecoversAKnownVerticalOffset) {
 // calibration leaves them. The right view is the left one shifted 20 px left (disparity 20) and
 // offset(x, y) = 0.6 + 0.002 x - 0.003 y px down (-0.12 .. 1.24 px over the 320 x 240 image).
 TEST_F(RectifyTest, RowCorrectionFitsAndRemovesAPlaneOfVerticalOffsets) {
-  cv::Mat noise(240, 320, CV_32F), tex;
-  cv::RNG rng(11);
-  rng.fill(noise, cv::RNG::UNIFORM, 0.0, 255.0);
-  cv::GaussianBlur(noise, tex, cv::Size(0, 0), 1.2);
-  cv::normalize(tex, tex, 20, 235, cv::NORM_MINMAX);
-  cv::Mat left;
-  tex.convertTo(left, CV_8U);
+  const cv::Mat left = smoothTexture(11);
   const cv::Vec3d truth(0.6, 0.002, -0.003);
   cv::Mat map_x(left.size(), CV_32F), map_y(left.size(), CV_32F);
   for (int y = 0; y < left.rows; ++y) {
