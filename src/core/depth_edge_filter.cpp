@@ -140,6 +140,41 @@ inline void forEachSet(const uint8_t* mask, int n, Fn&& fn) {
 
 constexpr int kMaxHalf = 32 / 2 + 16;  // widest map-test neighbourhood: window 32, margin 16
 
+/// The slope-tolerant form of the map test (MatcherParams::edge_slope_tolerant; docs/method.md,
+/// section 5): whether some neighbour of the flagged pixel within its square (half width
+/// f.half) shows a depth edge once the surface's slope is taken out. A neighbour q is paired
+/// with its mirror image q' = 2 p - q: on a plane, d(q) - d(p) = d(p) - d(q'), so the second
+/// difference e = d(q) + d(q') - 2 d(p) is zero however steep the plane, while a step of s
+/// between q and p gives e = -s (q farther) or +s (q nearer). The pixel stays flagged when
+/// -e > below or e > above for some pair, or, where only one of q, q' holds a disparity, when
+/// that one fails the plain test (d - d(q) > below or d(q) - d > above). @p fwd is the map
+/// framed in NaN (pad columns and rows on each side), @p mir the same rows mirrored
+/// (mir(y, c) = fwd(y, wp - 1 - c), wp = W + 2 pad), both with 8 spare columns. Rows dy <= 0
+/// visit every unordered pair {q, q'}. Eight neighbours per vector; NaN compares false.
+ES_KERNEL bool slopeStraddles(const cv::Mat& fwd, const cv::Mat& mir, int pad, int wp, int x,
+                              int y, int half, float d, float below, float above) {
+  const int side = 2 * half + 1;
+  const V8f vd = splat8(d), vbelow = splat8(below), vabove = splat8(above);
+  const V8f two_d = splat8(2.f * d);
+  const V8i lane = {0, 1, 2, 3, 4, 5, 6, 7};
+  const V8i sidev = {side, side, side, side, side, side, side, side};
+  for (int dy = -half; dy <= 0; ++dy) {
+    const float* q = fwd.ptr<float>(pad + y + dy) + pad + x - half;
+    const float* qm = mir.ptr<float>(pad + y - dy) + (wp - 1 - pad - x - half);
+    for (int i = 0; i < side; i += 8) {
+      const V8f a = load8(q + i), b = load8(qm + i);
+      const V8i in = (lane + i) < sidev;
+      const V8i va = a == a, vb = b == b;
+      const V8f e = a + b - two_d;
+      const V8i pair = va & vb & ((-e > vbelow) | (e > vabove));
+      const V8i one_a = va & ~vb & ((vd - a > vbelow) | (a - vd > vabove));
+      const V8i one_b = vb & ~va & ((vd - b > vbelow) | (b - vd > vabove));
+      if (anyLane(in & (pair | one_a | one_b))) return true;
+    }
+  }
+  return false;
+}
+
 }  // namespace
 
 void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv::Mat& right,
@@ -240,6 +275,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   const bool verify = mp.edge_verify_radius_px > 0 && left.type() == CV_8UC1 &&
                       right.type() == CV_8UC1 && left.size() == out.disparity.size() &&
                       right.size() == out.disparity.size();
+  // With edge_slope_tolerant, flagged pixels are judged again with the slope taken out
+  // (slopeStraddles) before their second chance; those it clears are kept.
+  const bool slope = on && mp.edge_slope_tolerant;
   std::vector<Flagged> flagged;
   // @p lo and @p hi (kept by the caller from frame to frame) hold the erosion and dilation of
   // the map and, after the map test, the map framed in NaN and its slots for the competitor
@@ -267,7 +305,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
       if (!straddles(d, a, b)) return;
       const int k = window_idx.at<uint8_t>(y, x);
       if (k == level) {
-        if (verify) {
+        if (verify || slope) {
           flagged.push_back(Flagged{x, y, half});
         } else {
           rejected.push_back(cv::Point(x, y));
@@ -362,6 +400,45 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
         }
       });
       for (size_t i = 0; i < pts.size(); ++i) judge(pts[i].x, pts[i].y, a[i], b[i]);
+    }
+  }
+  if (slope && !flagged.empty()) {
+    // The map the test looked at, framed in NaN, and its rows mirrored, in @p lo and @p hi
+    // (free until the second chance rebuilds them). Each pixel's verdict reads only these maps:
+    // fixed chunks over the threads give the same list whatever their number.
+    const int wp = W + 2 * pad;
+    cv::Mat fwd = lo, mir(hi.rows, hi.cols, CV_32F, hi.data, hi.step);
+    cv::parallel_for_(cv::Range(0, (fwd.rows + kRowBlock - 1) / kRowBlock), [&](const cv::Range& rg) {
+      for (int y = rg.start * kRowBlock; y < std::min(fwd.rows, rg.end * kRowBlock); ++y) {
+        float* f = fwd.ptr<float>(y);
+        float* m = mir.ptr<float>(y);
+        std::fill(f, f + fwd.cols, nan);
+        if (y >= pad && y < pad + H) {
+          std::memcpy(f + pad, supported.ptr<float>(y - pad), sizeof(float) * W);
+        }
+        for (int c = 0; c < wp; ++c) m[c] = f[wp - 1 - c];
+        std::fill(m + wp, m + mir.cols, nan);
+      }
+    });
+    std::vector<uint8_t> still(flagged.size(), 0);
+    constexpr int kSlopeChunk = 512;
+    const int chunks = static_cast<int>((flagged.size() + kSlopeChunk - 1) / kSlopeChunk);
+    cv::parallel_for_(cv::Range(0, chunks), [&](const cv::Range& rg) {
+      const size_t e = std::min(flagged.size(), static_cast<size_t>(rg.end) * kSlopeChunk);
+      for (size_t i = static_cast<size_t>(rg.start) * kSlopeChunk; i < e; ++i) {
+        const Flagged& f = flagged[i];
+        still[i] = slopeStraddles(fwd, mir, pad, wp, f.x, f.y, f.half,
+                                  out.disparity.at<float>(f.y, f.x), below, above);
+      }
+    });
+    size_t n = 0;
+    for (size_t i = 0; i < flagged.size(); ++i) {
+      if (still[i]) flagged[n++] = flagged[i];
+    }
+    flagged.resize(n);
+    if (!verify) {
+      for (const Flagged& f : flagged) rejected.push_back(cv::Point(f.x, f.y));
+      flagged.clear();
     }
   }
   if (!flagged.empty()) {

@@ -191,6 +191,8 @@ const std::vector<Entry>& table() {
     t.push_back(field("matcher", "edge_support_share", &PP::matcher, &MatcherParams::edge_support_share));
     t.push_back(field("matcher", "edge_support_radius_px", &PP::matcher,
                       &MatcherParams::edge_support_radius_px));
+    t.push_back(field("matcher", "edge_slope_tolerant", &PP::matcher,
+                      &MatcherParams::edge_slope_tolerant));
     // --- filter ----------------------------------------------------------------------------------
     t.push_back(
         field("filter", "remove_outliers", &PP::filter, &PostFilterParams::remove_outliers));

@@ -652,8 +652,9 @@ struct EdgeMap {
     window_idx = cv::Mat(disparity.size(), CV_8U, cv::Scalar(0));
   }
   // Runs the filter; returns the number of pixels it rejected.
-  int filter(double support_share) {
+  int filter(double support_share, bool slope_tolerant = true) {
     MatcherParams p;
+    p.edge_slope_tolerant = slope_tolerant;
     p.window_min_px = 7;
     p.edge_verify_radius_px = 0;
     p.edge_disparity_jump_px = 2.0;
@@ -697,6 +698,49 @@ TEST_F(MatcherTest, EdgeSupportKeepsTheTestAtAnInstrumentEdge) {
   EXPECT_EQ(cv::countNonZero(with.r.code(cv::Rect(22, 0, 16, 40)) ==
                              static_cast<int>(kCodeRejectEdge)),
             16 * 40);
+}
+
+// The slope-tolerant form of the map test (MatcherParams::edge_slope_tolerant), on the same
+// hand-made maps: a smooth surface seen at a steep angle, with and without a step on it.
+int rejectedIn(const EdgeMap& m, int x0, int x1, int y0, int y1) {
+  return cv::countNonZero(m.r.code(cv::Range(y0, y1 + 1), cv::Range(x0, x1 + 1)) ==
+                          static_cast<int>(kCodeRejectEdge));
+}
+
+TEST_F(MatcherTest, EdgeSlopeASteepSmoothPlaneIsNoDepthEdge) {
+  // d = 10 + 0.4 x: within the test's reach (8 px) a neighbour lies up to 3.2 px below, so the
+  // plain test (more than 2 px below) flags every pixel with a neighbour 6+ columns to its left.
+  cv::Mat d(40, 60, CV_32F);
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) d.at<float>(y, x) = 10.f + 0.4f * x;
+  }
+  EdgeMap plain(d), slope(d);
+  plain.filter(0.4, false);
+  slope.filter(0.4, true);
+  // Pixels 10+ px from the border: there every neighbour's mirror image lies inside the map
+  // and has a surface's support (the corners' do not, and where a mirror image is missing the
+  // one-sided plain test applies): columns 10..49 of rows 10..29.
+  EXPECT_EQ(rejectedIn(plain, 10, 49, 10, 29), 40 * 20);
+  // Taking the slope out, each pair's second difference is zero up to float rounding (~1e-5):
+  // nothing is an edge.
+  EXPECT_EQ(rejectedIn(slope, 10, 49, 10, 29), 0);
+}
+
+TEST_F(MatcherTest, EdgeSlopeStillFindsAStepOnASteepPlane) {
+  // The same plane with a raised block (an instrument, +10 px) from column 30 on.
+  cv::Mat d(40, 60, CV_32F);
+  for (int y = 0; y < d.rows; ++y) {
+    for (int x = 0; x < d.cols; ++x) d.at<float>(y, x) = 10.f + 0.4f * x + (x >= 30 ? 10.f : 0.f);
+  }
+  EdgeMap slope(d);
+  slope.filter(0.4, true);
+  // Both sides of the step within reach (columns 22..37) are flagged: a pair across the step
+  // has a second difference of +-10 px, beyond both thresholds (4 above, 2 below) ...
+  EXPECT_EQ(rejectedIn(slope, 22, 37, 10, 29), 16 * 20);
+  // ... and the plane beyond reach of it is left alone, on both sides (rows and columns 10+ px
+  // from the border, as above).
+  EXPECT_EQ(rejectedIn(slope, 10, 21, 10, 29), 0);
+  EXPECT_EQ(rejectedIn(slope, 38, 49, 10, 29), 0);
 }
 
 TEST_F(MatcherTest, EdgeSupportValidateNamesTheBadField) {

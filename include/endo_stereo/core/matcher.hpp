@@ -127,6 +127,11 @@ struct MatcherParams {
   double edge_support_share = 0.4;
   /// Radius of the support square, px, in [1, 8].
   int edge_support_radius_px = 2;
+  /// Slope-tolerant edge test (ours): a flagged pixel is judged again with the surface's slope
+  /// taken out (each neighbour q against its mirror image 2 p - q: the second difference
+  /// d(q) + d(2p - q) - 2 d(p), zero on any plane, must exceed the thresholds), so that an
+  /// oblique smooth surface is no depth edge; pixels it clears are kept without a second chance.
+  bool edge_slope_tolerant = true;
 
   /// @return an empty string when valid, otherwise a message naming the bad field and its range.
   std::string validate() const;
