@@ -247,9 +247,10 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
   }
   for (int level = 1; level < num_levels; ++level) level_count[level] = by_level[level].size();
   auto levelCount = [&](int level) -> size_t {
-    // The w_min test also serves edge_window_max_px for the pixels of every window size.
-    return level == 0 && limit_w > 0 ? static_cast<size_t>(out.stats.total_pixels)
-                                     : level_count[level];
+    // The w_min test also serves edge_window_max_px for the pixels of every window size: every
+    // pixel of the map (counted here, not taken from the result's stats, which a merged map,
+    // such as the temporal fallback's, does not carry).
+    return level == 0 && limit_w > 0 ? static_cast<size_t>(H) * W : level_count[level];
   };
   auto levelSide = [&](int level) {
     return 2 * ((mp.window_min_px + level * mp.window_step_px) / 2 + margin) + 1;
