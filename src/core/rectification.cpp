@@ -549,14 +549,20 @@ struct StereoRectifier::Impl {
   // Calibrated / pass-through, after the quality measure (which sees the uncorrected pair): the
   // right view's rows shifted by the latest fitted offset plane of this rectification.
   void correctRows(cv::Mat& right_rect) {
-    if (!params.row_correction || !have_row_model || row_generation != generation) return;
-    const cv::Vec3d& m = row_model;
-    const double w = right_rect.cols - 1, h = right_rect.rows - 1;
-    const double corner = std::max({std::abs(m[0]), std::abs(m[0] + m[1] * w),
-                                    std::abs(m[0] + m[2] * h), std::abs(m[0] + m[1] * w + m[2] * h)});
-    if (corner < params.row_correction_min_px) return;
+    if (!rowCorrectionApplies(right_rect.size())) return;
     shiftRows(right_rect, row_model, row_shifted, row_map_x, row_map_y, row_map_model);
     row_shifted.copyTo(right_rect);
+  }
+  // Whether the right view of this rectification (of @p size) gets its rows shifted: the
+  // correction is on, fitted for this rectification, and reaches row_correction_min_px at an
+  // image corner.
+  bool rowCorrectionApplies(const cv::Size& size) const {
+    if (!params.row_correction || !have_row_model || row_generation != generation) return false;
+    const cv::Vec3d& m = row_model;
+    const double w = size.width - 1, h = size.height - 1;
+    const double corner = std::max({std::abs(m[0]), std::abs(m[0] + m[1] * w),
+                                    std::abs(m[0] + m[2] * h), std::abs(m[0] + m[1] * w + m[2] * h)});
+    return corner >= params.row_correction_min_px;
   }
 
   bool measureNow() const {
@@ -794,8 +800,17 @@ bool StereoRectifier::rectify(const cv::Mat& left_gray, const cv::Mat& right_gra
 bool StereoRectifier::rectifyImage(bool left, const cv::Mat& raw, cv::Mat& rectified,
                                    int interpolation, std::string* error) const {
   const Impl& s = *impl_;
+  // The right camera's images get the rows shifted as the matched right view does (calibrated
+  // and pass-through modes), with the caller's interpolation.
+  auto correct = [&](cv::Mat& img) {
+    if (left || !s.rowCorrectionApplies(img.size())) return;
+    cv::Mat src = img.clone(), map_x, map_y;
+    cv::Vec3d map_model;
+    shiftRows(src, s.row_model, img, map_x, map_y, map_model, interpolation);
+  };
   if (s.active == "pass_through") {
     raw.copyTo(rectified);
+    correct(rectified);
     return true;
   }
   const bool have = (s.active == "calibrated" && s.maps_valid) ||
@@ -808,6 +823,7 @@ bool StereoRectifier::rectifyImage(bool left, const cv::Mat& raw, cv::Mat& recti
   }
   cv::remap(raw, rectified, left ? s.map_l1 : s.map_r1, left ? s.map_l2 : s.map_r2, interpolation,
             cv::BORDER_CONSTANT);
+  if (s.active == "calibrated") correct(rectified);
   return true;
 }
 

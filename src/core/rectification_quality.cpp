@@ -332,7 +332,7 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
 }
 
 void shiftRows(const cv::Mat& right, const cv::Vec3d& model, cv::Mat& out, cv::Mat& map_x,
-               cv::Mat& map_y, cv::Vec3d& map_model) {
+               cv::Mat& map_y, cv::Vec3d& map_model, int interpolation) {
   if (map_x.size() != right.size() || map_y.size() != right.size() || map_model != model) {
     map_x.create(right.size(), CV_32F);
     map_y.create(right.size(), CV_32F);
@@ -346,7 +346,7 @@ void shiftRows(const cv::Mat& right, const cv::Vec3d& model, cv::Mat& out, cv::M
     }
     map_model = model;
   }
-  cv::remap(right, out, map_x, map_y, cv::INTER_LINEAR, cv::BORDER_REPLICATE);
+  cv::remap(right, out, map_x, map_y, interpolation, cv::BORDER_REPLICATE);
 }
 
 }  // namespace endo_stereo

@@ -375,12 +375,21 @@ TEST_F(RectifyTest, RowCorrectionFitsAndRemovesAPlaneOfVerticalOffsets) {
   // The reported quality describes the rectification itself (uncorrected), not the correction.
   EXPECT_NEAR(before.median_offset_px,
               measureRowAlignmentPatches(left, right, 0, 40, 300).median_offset_px, 1e-9);
+  // One more image of the right camera (rectifyImage) gets the same row shift as the matched
+  // right view: the same operations, so the same bits; the left camera's is left as it is.
+  cv::Mat extra;
+  ASSERT_TRUE(corrected.rectifyImage(false, right, extra, cv::INTER_LINEAR, &err)) << err;
+  EXPECT_EQ(cv::norm(extra, rg, cv::NORM_INF), 0);
+  ASSERT_TRUE(corrected.rectifyImage(true, left, extra, cv::INTER_LINEAR, &err)) << err;
+  EXPECT_EQ(cv::norm(extra, left, cv::NORM_INF), 0);
 
   // Switched off, or before any measurement: the right view passes unchanged.
   rp.row_correction = false;
   StereoRectifier plain(rp);
   ASSERT_TRUE(plain.rectify(left, right, cv::Mat(), lg, rg, lc, &err)) << err;
   EXPECT_EQ(cv::norm(rg, right, cv::NORM_INF), 0);
+  ASSERT_TRUE(plain.rectifyImage(false, right, extra, cv::INTER_LINEAR, &err)) << err;
+  EXPECT_EQ(cv::norm(extra, right, cv::NORM_INF), 0);
   rp.row_correction = true;
   rp.quality_stride = 0;
   StereoRectifier unmeasured(rp);

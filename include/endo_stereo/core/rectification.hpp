@@ -248,7 +248,9 @@ class StereoRectifier {
                std::string* error);
 
   /// Apply the current rectification to one more image of the left (left = true) or right camera
-  /// (a mask with INTER_NEAREST, the right colour image, ...). Valid after a successful rectify().
+  /// (a mask with INTER_NEAREST, the right colour image, ...), as rectify() treats that camera's
+  /// view: a right image also gets the row correction (RectifyParams::row_correction) when
+  /// rectify() applies it. Valid after a successful rectify().
   /// @return false when no rectification is available or the size does not match.
   bool rectifyImage(bool left, const cv::Mat& raw, cv::Mat& rectified,
                     int interpolation /* cv::InterpolationFlags */, std::string* error) const;
@@ -340,11 +342,12 @@ int fitRowOffset(const std::vector<cv::Vec3d>& matches, cv::Vec3d* model);
 
 /**
  * Shifts the rows of @p right by the offset plane (c0 + c1 x + c2 y, px; the right row that
- * matches left row y is y + offset): out(x, y) = right(x, y + offset(x, y)), bilinear, the
- * border row repeated. @p map_x / @p map_y cache the maps (rebuilt when @p map_model or the size
- * differs). out may not alias right.
+ * matches left row y is y + offset): out(x, y) = right(x, y + offset(x, y)), with
+ * @p interpolation (cv::InterpolationFlags; bilinear unless told), the border row repeated.
+ * @p map_x / @p map_y cache the maps (rebuilt when @p map_model or the size differs). out may
+ * not alias right.
  */
 void shiftRows(const cv::Mat& right, const cv::Vec3d& model, cv::Mat& out, cv::Mat& map_x,
-               cv::Mat& map_y, cv::Vec3d& map_model);
+               cv::Mat& map_y, cv::Vec3d& map_model, int interpolation = 1 /* INTER_LINEAR */);
 
 }  // namespace endo_stereo
