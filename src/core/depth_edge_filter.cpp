@@ -409,18 +409,12 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     // fixed chunks over the threads give the same list whatever their number.
     const int wp = W + 2 * pad;
     cv::Mat fwd = lo, mir(hi.rows, hi.cols, CV_32F, hi.data, hi.step);
-    cv::parallel_for_(cv::Range(0, (fwd.rows + kRowBlock - 1) / kRowBlock), [&](const cv::Range& rg) {
-      for (int y = rg.start * kRowBlock; y < std::min(fwd.rows, rg.end * kRowBlock); ++y) {
-        float* f = fwd.ptr<float>(y);
-        float* m = mir.ptr<float>(y);
-        std::fill(f, f + fwd.cols, nan);
-        if (y >= pad && y < pad + H) {
-          std::memcpy(f + pad, supported.ptr<float>(y - pad), sizeof(float) * W);
-        }
-        for (int c = 0; c < wp; ++c) m[c] = f[wp - 1 - c];
-        std::fill(m + wp, m + mir.cols, nan);
-      }
-    });
+    // Written in place: lo already has the framed size (W + 2 pad + 8) x (H + 2 pad).
+    cv::copyMakeBorder(supported, fwd, pad, pad, pad, pad + 8, cv::BORDER_CONSTANT,
+                       cv::Scalar(nan));
+    cv::flip(fwd.colRange(0, wp), mir.colRange(0, wp), 1);
+    mir.colRange(wp, mir.cols).setTo(nan);
+    CV_Assert(fwd.data == lo.data && mir.data == hi.data);
     std::vector<uint8_t> still(flagged.size(), 0);
     constexpr int kSlopeChunk = 512;
     const int chunks = static_cast<int>((flagged.size() + kSlopeChunk - 1) / kSlopeChunk);
