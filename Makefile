@@ -3,13 +3,14 @@ SHELL := /bin/bash
 WS ?= $(CURDIR)/.ws
 export WS
 
-.PHONY: all deps build test bench demo clean help asan tsan fuzz soak
+.PHONY: all deps build test test-runner-selftest bench demo clean help asan tsan fuzz soak
 
 all: build
 
 help:
 	@echo "make demo   - install missing Debian packages, build, run the headless demo (outputs in out/demo)"
 	@echo "make test   - install missing Debian packages, build, run every test (last line: N passed, N failed)"
+	@echo "make test-runner-selftest - the test runner on planted defects (last line: runner self-test: N planted, N caught)"
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
 	@echo "make asan   - ASan+UBSan build in .ws_asan, whole test suite;  make tsan - TSan nodelet run in .ws_tsan"
@@ -23,6 +24,9 @@ build: deps
 
 test: deps
 	@scripts/run_tests.sh
+
+test-runner-selftest: build
+	@scripts/runner_selftest.sh
 
 bench: build
 	@scripts/bench.sh

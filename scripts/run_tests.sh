@@ -1,55 +1,67 @@
 #!/usr/bin/env bash
-# Builds and runs every test (gtest for the core, rostest for the nodelet), then the core gtests
-# again under ASan+UBSan (skip with ES_SKIP_ASAN=1), then prints the plain summary line
-# "N passed, N failed" and exits non-zero on any failure.
+# `make test`: builds, runs every test the build registers, then the core gtests and the fuzz
+# regressions again under ASan+UBSan (ES_SKIP_ASAN=1 skips that stage, and says so), and prints
+# the summary; its last line is "N passed, N failed" over distinct tests, and the exit status is
+# non-zero on any failure in any stage.
+#
+# scripts/test_runner.py does the accounting (its header says how): the list of tests comes from
+# the build's CTest registry, every test's exit status is checked, a test that leaves no result
+# fails by name, and a skip passes only when it names something absent (data or CPU feature).
 set -uo pipefail
 source "$(dirname "$0")/env.sh"
-"$ES_ROOT/scripts/build.sh" || { echo "build failed"; echo "0 passed, 1 failed"; exit 1; }
-"$ES_ROOT/scripts/build.sh" tests || { echo "building tests failed"; echo "0 passed, 1 failed"; exit 1; }
-es_source_ws
-rm -rf "$WS/build/test_results"
-cd "$WS"
-catkin_make -DPYTHON_EXECUTABLE=/usr/bin/python3 run_tests -j1 ${TEST_ARGS:-} 2>&1 | tee "$WS/run_tests.log" | \
-  grep -E '^\[ *(RUN|  OK|  FAILED|  PASSED|  SKIPPED) *\]|^\[ROSTEST\]|FAILURE|rostest|Error' || true
+runner="/usr/bin/python3 $ES_ROOT/scripts/test_runner.py"
+stages_dir="$WS/test_stages"
+rm -rf "$stages_dir"
+mkdir -p "$stages_dir"
+fail_stage() {  # a stage that could not run at all: one named failure in the summary
+  printf '{"stage": "%s", "records": [{"name": "%s", "kind": "build", "cases": [], "seconds": 0, "log": "%s", "problems": ["%s"]}]}\n' \
+    "$1" "$2" "$3" "$4" > "$stages_dir/$1.json"
+}
 
-# ASan/UBSan stage (RELIABILITY.md section 3): the core gtests (test/core) built with
-# -fsanitize=address,undefined in a workspace of their own (WS_ASAN, default .ws_asan, shared with
-# `make asan`), run with leak detection; a sanitizer report fails the binary. Their results go
-# next to the others, so the summary line below counts them. ES_SKIP_ASAN=1 skips the stage.
+# Main stage: the package and every test target (the build's status is checked), then each test.
+if ! "$ES_ROOT/scripts/build.sh" > "$WS/build.log" 2>&1 || \
+   ! "$ES_ROOT/scripts/build.sh" tests >> "$WS/build.log" 2>&1; then
+  tail -n 30 "$WS/build.log"
+  fail_stage main build "$WS/build.log" "build failed, see $WS/build.log"
+else
+  es_source_ws
+  rm -rf "$WS/build/test_results"
+  $runner run --build "$WS/build" --stage main --out "$stages_dir/main.json"
+fi
+
+# ASan/UBSan stage (RELIABILITY.md section 3): the core gtests (test/core) and the fuzz-regression
+# replays built with -fsanitize=address,undefined in a workspace of their own (WS_ASAN, default
+# .ws_asan, shared with `make asan`), run with leak detection; a sanitizer report is a non-zero
+# exit, which fails the test.
 if [ "${ES_SKIP_ASAN:-0}" != 1 ]; then
-  asan_results="$WS/build/test_results/endo_stereo_asan"
-  mkdir -p "$asan_results"
-  asan_fail() {  # a JUnit file with one failing case, so test_summary.py counts it
-    printf '<testsuite name="asan" tests="1" failures="1"><testcase classname="ASan" name="%s">'\
-'<failure message="%s"/></testcase></testsuite>\n' "$1" "$2" > "$asan_results/asan_$1_sanitizer.xml"
-  }
-  mapfile -t asan_tests < <(grep -oE 'catkin_add_gtest\(test_[a-z0-9_]+ test/core/' \
+  mapfile -t asan_tests < <(grep -oE 'catkin_add_gtest\(test_[a-z0-9_]+ test/(core|fuzz)/' \
     "$ES_ROOT/CMakeLists.txt" | grep -oE 'test_[a-z0-9_]+' | sort -u)
+  mapfile -t -O "${#asan_tests[@]}" asan_tests < <(grep -oE '^ *fuzz_replay_test\([a-z_]+' \
+    "$ES_ROOT/CMakeLists.txt" | sed -E 's/.*\(/test_fuzz_regressions_/' | sort -u)
   asan_ws="${WS_ASAN:-$ES_ROOT/.ws_asan}"
   asan_start=$(date +%s)
-  echo "[asan] building ${#asan_tests[@]} core gtests with ASan+UBSan in $asan_ws"
+  echo "[asan] building ${#asan_tests[@]} tests with ASan+UBSan in $asan_ws"
   mkdir -p "$asan_ws"
   if ! WS="$asan_ws" BUILD_TYPE=RelWithDebInfo \
        CMAKE_EXTRA_ARGS="-DES_SANITIZE=address,undefined ${CMAKE_EXTRA_ARGS:-}" \
        "$ES_ROOT/scripts/build.sh" "${asan_tests[@]}" > "$asan_ws/run_tests_build.log" 2>&1; then
     tail -n 20 "$asan_ws/run_tests_build.log"
-    asan_fail build "ASan build failed, see $asan_ws/run_tests_build.log"
+    fail_stage asan asan_build "$asan_ws/run_tests_build.log" \
+      "ASan build failed, see $asan_ws/run_tests_build.log"
   else
     echo "[asan] built in $(( $(date +%s) - asan_start )) s"
-    for t in "${asan_tests[@]}"; do
-      xml="$asan_results/asan_$t.xml"
-      ASAN_OPTIONS="detect_leaks=1" \
-      UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1:suppressions=$ES_ROOT/scripts/ubsan.supp" \
-        "$asan_ws/devel/lib/endo_stereo/$t" --gtest_output="xml:$xml" > "$asan_ws/$t.log" 2>&1
-      rc=$?
-      if [ "$rc" != 0 ] && ! grep -q '<failure' "$xml" 2>/dev/null; then
-        # Crashed before writing results, or a report at exit (leaks): count it as a failure.
-        grep -E 'ERROR: (Address|Leak)Sanitizer|runtime error' "$asan_ws/$t.log" | head -n 3
-        asan_fail "$t" "exit $rc: sanitizer report or crash, see $asan_ws/$t.log"
-      fi
-      echo "[asan] $t: exit $rc"
-    done
+    rm -rf "$asan_ws/build/test_results"
+    ASAN_OPTIONS="detect_leaks=1" \
+    UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1:suppressions=$ES_ROOT/scripts/ubsan.supp" \
+      $runner run --build "$asan_ws/build" --stage asan --out "$stages_dir/asan.json" \
+        --only "${asan_tests[@]}"
   fi
   echo "[asan] stage took $(( $(date +%s) - asan_start )) s"
+else
+  echo "[asan] stage skipped (ES_SKIP_ASAN=1): the ASan line is absent from the summary"
 fi
-/usr/bin/python3 "$ES_ROOT/scripts/test_summary.py" "$WS/build/test_results"
+# The runner itself, on planted defects (test/runner_selftest): a runner that stops catching them
+# fails the run.
+"$ES_ROOT/scripts/runner_selftest.sh" --stage "$stages_dir/selftest.json"
+
+$runner summary "$stages_dir/main.json" "$stages_dir/selftest.json" $( [ -f "$stages_dir/asan.json" ] && echo "$stages_dir/asan.json")

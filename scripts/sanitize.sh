@@ -45,8 +45,8 @@ case "$mode" in
     # shellcheck disable=SC1091
     source "$ES_ROOT/scripts/env.sh"
     export CMAKE_EXTRA_ARGS="-DES_SANITIZE=address,undefined ${CMAKE_EXTRA_ARGS:-}"
-    # halt_on_error makes a UBSan report fail the test that triggered it (scripts/ubsan.supp: one
-    # alignment report inside OpenCV's intrinsics header).
+    # halt_on_error makes a UBSan report fail the test that triggered it (scripts/ubsan.supp says
+    # why it holds no entry).
     export UBSAN_OPTIONS="print_stacktrace=1:halt_on_error=1:suppressions=$ES_ROOT/scripts/ubsan.supp"
     mkdir -p "$WS"
     echo "[asan] building in $WS ($BUILD_TYPE, jobs $JOBS)"
@@ -64,40 +64,32 @@ case "$mode" in
     rm -rf "$WS/build/test_results"
     logs="$WS/sanitize_logs"
     rm -rf "$logs"; mkdir -p "$logs"
-    # 1) gtests (linked with the ASan runtime): leaks are ours, detect them.
-    # A make error (a test target that does not build) would leave no result file: counted.
-    make_failures=0
+    runner="/usr/bin/python3 $ES_ROOT/scripts/test_runner.py"
+    # 1) gtests (linked with the ASan runtime): leaks are ours, detect them. Each test's exit
+    # status is checked (a sanitizer report is a non-zero exit), a missing result is a failure.
     ASAN_OPTIONS="detect_leaks=1:abort_on_error=0:log_path=$logs/gtest" \
-      make -C "$WS/build" -j1 run_tests_endo_stereo_gtest > "$logs/gtest_run.log" 2>&1 || \
-      { echo "[asan] make run_tests_endo_stereo_gtest failed (see $logs/gtest_run.log)";
-        make_failures=$((make_failures + 1)); }
+      $runner run --build "$WS/build" --kind gtest --stage asan_gtests --out "$logs/gtests.json"
     echo "[asan] gtests done at $(elapsed) s"
     # 2) rostests: the nodelet manager and rostest are not instrumented; preload the runtime.
-    targets="$(make -C "$WS/build" help 2>/dev/null)"  # not piped into grep -q: pipefail
-    if grep -q 'run_tests_endo_stereo_rostest$' <<< "$targets"; then
-      LD_PRELOAD="$(gcc -print-file-name=libasan.so)" \
-      ASAN_OPTIONS="detect_leaks=0:verify_asan_link_order=0:log_path=$logs/rostest" \
-        make -C "$WS/build" -j1 run_tests_endo_stereo_rostest > "$logs/rostest_run.log" 2>&1 || \
-        { echo "[asan] make run_tests_endo_stereo_rostest failed (see $logs/rostest_run.log)";
-          make_failures=$((make_failures + 1)); }
-      echo "[asan] rostests done at $(elapsed) s"
-    else
-      echo "[asan] no rostest target in this build"
-    fi
-    reports=$(report_count "$logs"/gtest* "$logs"/rostest* "$logs"/*.log)
+    LD_PRELOAD="$(gcc -print-file-name=libasan.so)" \
+    ASAN_OPTIONS="detect_leaks=0:verify_asan_link_order=0:log_path=$logs/rostest" \
+      $runner run --build "$WS/build" --kind rostest --stage asan_rostests \
+        --out "$logs/rostests.json"
+    echo "[asan] rostests done at $(elapsed) s"
+    # A report from a process that is not a test (the manager, a node) changes no exit status:
+    # every report line counts as one more failure.
+    reports=$(report_count "$logs"/gtest.* "$logs"/rostest.*)
+    extra=()
     if [ "$reports" != 0 ]; then
       echo "[asan] $reports sanitizer report line(s); first ones:"
-      cat "$logs"/gtest* "$logs"/rostest* 2>/dev/null | \
+      cat "$logs"/gtest.* "$logs"/rostest.* 2>/dev/null | \
         grep -E -A12 '==ERROR|runtime error|SUMMARY' | head -n 60
+      printf '{"stage": "asan_reports", "records": [{"name": "sanitizer reports", "kind": "logs", "cases": [], "seconds": 0, "log": "%s", "problems": ["%s report line(s) in %s"]}]}\n' \
+        "$logs" "$reports" "$logs" > "$logs/reports.json"
+      extra=("$logs/reports.json")
     fi
     echo "[asan] total $(elapsed) s (build + tests); logs in $logs"
-    summary=$(/usr/bin/python3 "$ES_ROOT/scripts/test_summary.py" "$WS/build/test_results" | tail -n 1)
-    passed=$(echo "$summary" | grep -oE '^[0-9]+' || echo 0)
-    failed=$(echo "$summary" | grep -oE '[0-9]+ failed' | grep -oE '^[0-9]+' || echo 1)
-    [ "$reports" != 0 ] && failed=$((failed + 1))
-    failed=$((failed + make_failures))
-    echo "$passed passed, $failed failed"
-    [ "$failed" = 0 ]
+    $runner summary "$logs/gtests.json" "$logs/rostests.json" "${extra[@]}"
     ;;
   tsan)
     export WS="${WS_TSAN:-$ES_ROOT/.ws_tsan}"

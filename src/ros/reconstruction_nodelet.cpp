@@ -10,6 +10,7 @@
 #include "endo_stereo/ros/reconfigure.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 #include "endo_stereo/ros/stereo_image_proc_params.hpp"
+#include "endo_stereo/ros/unknown_params.hpp"
 
 namespace endo_stereo {
 
@@ -42,6 +43,15 @@ void ReconstructionNodelet::onInit() {
   // Each once: onInit() runs once per load.
   for (const std::string& line : sip.ignored) NODELET_WARN("%s", line.c_str());
   for (const std::string& line : sip.mapped) NODELET_INFO("%s", line.c_str());
+  // A private parameter no list above reads is a typo or another tool's name: say so once.
+  for (const UnknownParam& u : unknownPrivateParams(pnh, knownPrivateParams())) {
+    if (u.closest.empty()) {
+      NODELET_WARN("~%s is not a parameter of this node and is ignored", u.name.c_str());
+    } else {
+      NODELET_WARN("~%s is not a parameter of this node and is ignored; did you mean ~%s?",
+                   u.name.c_str(), u.closest.c_str());
+    }
+  }
   if (e.empty()) e = params.validate();
   if (!e.empty()) {
     // Without valid parameters there is nothing sensible to run; say why once and stay idle

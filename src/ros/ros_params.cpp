@@ -150,28 +150,47 @@ std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams
   return {};
 }
 
+namespace {
+
+// Every RosParams field with its parameter name, one list for reading and for rosParamNames().
+template <class F>
+void forEachRosParam(RosParams& p, F&& f) {
+  f("queue_size", &p.queue_size);
+  f("backlog_pairs", &p.backlog_pairs);
+  f("backlog_max_age_s", &p.backlog_max_age_s);
+  f("approximate_sync", &p.approximate_sync);
+  f("sync_tolerance_s", &p.sync_tolerance_s);
+  f("image_transport", &p.image_transport);
+  f("target_frame", &p.target_frame);
+  f("tf_timeout_s", &p.tf_timeout_s);
+  f("frame_id", &p.frame_id);
+  f("diagnostics_period_s", &p.diagnostics_period_s);
+  f("unpaired_timeout_s", &p.unpaired_timeout_s);
+  f("camera_info_wait_s", &p.camera_info_wait_s);
+  f("restart_jump_back_s", &p.restart_jump_back_s);
+  f("subpixel_delta_d", &p.subpixel_delta_d);
+  f("no_input_warn_s", &p.no_input_warn_s);
+  f("preset", &p.preset);
+}
+
+}  // namespace
+
 std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params) {
   RosParams p = params;
   std::string e;
-  if (e.empty()) e = readBoth(pnh, "queue_size", &p.queue_size);
-  if (e.empty()) e = readBoth(pnh, "backlog_pairs", &p.backlog_pairs);
-  if (e.empty()) e = readBoth(pnh, "backlog_max_age_s", &p.backlog_max_age_s);
-  if (e.empty()) e = readBoth(pnh, "approximate_sync", &p.approximate_sync);
-  if (e.empty()) e = readBoth(pnh, "sync_tolerance_s", &p.sync_tolerance_s);
-  if (e.empty()) e = readBoth(pnh, "image_transport", &p.image_transport);
-  if (e.empty()) e = readBoth(pnh, "target_frame", &p.target_frame);
-  if (e.empty()) e = readBoth(pnh, "tf_timeout_s", &p.tf_timeout_s);
-  if (e.empty()) e = readBoth(pnh, "frame_id", &p.frame_id);
-  if (e.empty()) e = readBoth(pnh, "diagnostics_period_s", &p.diagnostics_period_s);
-  if (e.empty()) e = readBoth(pnh, "unpaired_timeout_s", &p.unpaired_timeout_s);
-  if (e.empty()) e = readBoth(pnh, "camera_info_wait_s", &p.camera_info_wait_s);
-  if (e.empty()) e = readBoth(pnh, "restart_jump_back_s", &p.restart_jump_back_s);
-  if (e.empty()) e = readBoth(pnh, "subpixel_delta_d", &p.subpixel_delta_d);
-  if (e.empty()) e = readBoth(pnh, "no_input_warn_s", &p.no_input_warn_s);
-  if (e.empty()) e = readBoth(pnh, "preset", &p.preset);
+  forEachRosParam(p, [&](const char* name, auto* field) {
+    if (e.empty()) e = readBoth(pnh, name, field);
+  });
   if (!e.empty()) return e;
   params = p;
   return {};
+}
+
+std::vector<std::string> rosParamNames() {
+  RosParams p;
+  std::vector<std::string> names;
+  forEachRosParam(p, [&](const char* name, auto*) { names.emplace_back(name); });
+  return names;
 }
 
 void storePipelineParamsToRos(const ros::NodeHandle& pnh, const PipelineParams& params,

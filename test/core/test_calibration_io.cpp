@@ -271,7 +271,7 @@ TEST(CalibrationValidation, RefusesBadCalibrationsNamingTheField) {
 TEST(CalibrationIo, LoadsUclXmlBlocksThatFileStorageRejects) {
   const std::string dir = std::string(ES_SHARED_DATA) + "/ucl_rectify_golden";
   if (!fileExists(dir + "/calib.left.intrinsic.xml")) {
-    GTEST_SKIP() << "shared data not found at " << dir << " (../shared/data beside the repository)";
+    GTEST_SKIP() << "absent: " << dir << " (../shared/data beside the repository)";
   }
   cv::Mat m;
   std::string err;
@@ -289,7 +289,7 @@ TEST(CalibrationIo, LoadsUclXmlBlocksThatFileStorageRejects) {
 TEST(CalibrationIo, LoadsHamlynTextCalibration) {
   const std::string dir = std::string(ES_SHARED_DATA) + "/hamlyn_heart_phantom";
   if (!fileExists(dir + "/calib.l2r.4x4")) {
-    GTEST_SKIP() << "shared data not found at " << dir << " (../shared/data beside the repository)";
+    GTEST_SKIP() << "absent: " << dir << " (../shared/data beside the repository)";
   }
   StereoCalibration s;
   std::string err;

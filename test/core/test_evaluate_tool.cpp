@@ -234,7 +234,7 @@ TEST_F(EvaluateTool, BadUsageExitsWithTwo) {
 TEST_F(EvaluateTool, OpenCvFiguresOnTheInVivoRecordingMatchAnIndependentComputation) {
   const std::string d = std::string(ES_SHARED_DATA) + "/real/hamlyn_invivo1";
   if (!exists(d + "/left/0001.png")) {
-    GTEST_SKIP() << "SKIP: " << d << " not found (../shared/data is absent)";
+    GTEST_SKIP() << "absent: " << d << " (../shared/data beside the repository)";
   }
   ASSERT_EQ(evaluate("--left " + d + "/left/%04d.png --right " + d +
                      "/right/%04d.png --first 1 --count 60 --methods bm,sgbm --json " + dir_ +

@@ -49,7 +49,7 @@ double ncc(const cv::Mat& a, const cv::Mat& b) {
 TEST_F(RectifyTest, ReproducesUclReferenceRectification) {
   const std::string dir = std::string(ES_SHARED_DATA) + "/ucl_rectify_golden";
   if (!dirExists(dir + "/leftImage.png")) {
-    GTEST_SKIP() << "shared data not found at " << dir << " (../shared/data beside the repository)";
+    GTEST_SKIP() << "absent: " << dir << " (../shared/data beside the repository)";
   }
   StereoCalibration calib;
   std::string err;
@@ -538,7 +538,7 @@ TEST_F(RectifyTest, DownsampledAndFieldImagesRectifyWithScaledCalibration) {
 TEST_F(RectifyTest, HamlynPhantomRectifiesToExpectedDisparities) {
   const std::string dir = std::string(ES_SHARED_DATA) + "/hamlyn_heart_phantom";
   if (!dirExists(dir + "/f7_dynamic_deint_L_0100.png")) {
-    GTEST_SKIP() << "shared data not found at " << dir << " (../shared/data beside the repository)";
+    GTEST_SKIP() << "absent: " << dir << " (../shared/data beside the repository)";
   }
   StereoCalibration calib;
   std::string err;

@@ -155,6 +155,22 @@ inline double numberOr(const std::map<std::string, std::string>& kv, const std::
   }
 }
 
+/// The fewest of @p sent pairs, paced at @p period_ms, that a node must process: @p share of
+/// what its own compute time allows. A pair that arrives while the node is busy is dropped, by
+/// design, so at most period / median of them can be matched when the median processing time
+/// exceeds the period. @p diagnostics holds "pipeline median (ms)".
+/// The share is the caller's margin for jitter: where a frame costs close to the period (the real
+/// 360x288 frames at 25 Hz on a shared 2-core machine), pairs are dropped in bursts even with a
+/// median under the period (8% of 150 seen on a quiet machine), so such streams use 0.75; a node
+/// that outputs little still fails.
+inline double minimumProcessed(int sent, double period_ms,
+                               const std::map<std::string, std::string>& diagnostics,
+                               double share) {
+  const double median_ms = numberOr(diagnostics, "pipeline median (ms)", period_ms);
+  const double capacity = median_ms > period_ms ? period_ms / median_ms : 1.0;
+  return share * sent * capacity;
+}
+
 /// Topics one node publishes and subscribes to, as registered with the master.
 struct NodeTopics {
   std::set<std::string> published, subscribed;

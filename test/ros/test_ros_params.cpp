@@ -1,5 +1,7 @@
 // rostest (test/ros/ros_params.test): ROS parameters -> core structs through the same keys as
 // the YAML presets (one path: config/*.yaml -> ROS params -> structs).
+#include <algorithm>
+
 #include <gtest/gtest.h>
 #include <ros/package.h>
 #include <ros/ros.h>
@@ -7,6 +9,7 @@
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 #include "endo_stereo/ros/stereo_image_proc_params.hpp"
+#include "endo_stereo/ros/unknown_params.hpp"
 
 namespace endo_stereo {
 namespace {
@@ -226,6 +229,42 @@ TEST(PipelineParamsFromRos, StoringAfterAChangeWritesTheChangedValues) {
   ASSERT_TRUE(pnh.getParam("matcher/delta_min", delta));
   EXPECT_EQ(max_d, 99);
   EXPECT_DOUBLE_EQ(delta, 0.77);
+}
+
+TEST(UnknownParams, NamedWithTheClosestKnownName) {
+  ros::NodeHandle pnh("~unknown");
+  pnh.setParam("rectify_mode", std::string("pass_through"));  // the README's old spelling
+  pnh.setParam("max_disparty", 99);                           // a typo of a section's field
+  pnh.setParam("ros/queue_sise", 3);                          // a typo under the preset's ros:
+  pnh.setParam("zzzz_qqqq_wwww", 1);                          // like nothing we read
+  // Known: read by the loaders, so never listed.
+  pnh.setParam("queue_size", 10);
+  pnh.setParam("ros/queue_size", 10);
+  pnh.setParam("matcher/max_disparity", 47);
+  pnh.setParam("disparity_range", 96);         // stereo_image_proc's name
+  pnh.setParam("matcher_max_disparity", 47);   // dynamic_reconfigure's copy
+  pnh.setParam("config_file", std::string(""));
+  std::vector<UnknownParam> u = unknownPrivateParams(pnh, knownPrivateParams());
+  std::sort(u.begin(), u.end(),
+            [](const UnknownParam& a, const UnknownParam& b) { return a.name < b.name; });
+  ASSERT_EQ(u.size(), 4u);
+  EXPECT_EQ(u[0].name, "max_disparty");
+  EXPECT_EQ(u[0].closest, "matcher/max_disparity");
+  EXPECT_EQ(u[1].name, "rectify_mode");
+  EXPECT_EQ(u[1].closest, "rectify/mode");
+  EXPECT_EQ(u[2].name, "ros/queue_sise");
+  EXPECT_EQ(u[2].closest, "ros/queue_size");
+  EXPECT_EQ(u[3].name, "zzzz_qqqq_wwww");
+  EXPECT_EQ(u[3].closest, "");
+}
+
+TEST(UnknownParams, EveryNameOfBothPresetsIsKnown) {
+  // The .test file loads both presets into ~default and ~paper: nothing there may be warned about.
+  for (const char* ns : {"~default", "~paper"}) {
+    const std::vector<UnknownParam> u =
+        unknownPrivateParams(ros::NodeHandle(ns), knownPrivateParams());
+    for (const UnknownParam& p : u) ADD_FAILURE() << ns << "/" << p.name << " is unknown";
+  }
 }
 
 }  // namespace

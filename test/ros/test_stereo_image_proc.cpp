@@ -15,6 +15,8 @@
 #include <vector>
 
 #include <dynamic_reconfigure/Reconfigure.h>
+#include <rosgraph_msgs/Log.h>
+#include <algorithm>
 #include <gtest/gtest.h>
 #include <nodelet/loader.h>
 #include <ros/console.h>
@@ -59,6 +61,34 @@ class LogCapture : public ros::console::LogAppender {
   std::vector<std::pair<ros::console::Level, std::string>> lines_;
 };
 
+/// ERROR and FATAL lines of every node (the master's aggregated /rosout), kept from the moment
+/// this test process subscribes: a reconfigure callback that throws logs there, wherever it runs.
+class RosoutErrors {
+ public:
+  RosoutErrors() : collector_(nh_, "/rosout_agg", 1000) {}
+  std::vector<std::string> exceptions() {
+    std::vector<std::string> out;
+    for (const auto& m : collector_.all()) {
+      if (m->level < rosgraph_msgs::Log::ERROR) continue;
+      std::string text = m->msg;
+      std::transform(text.begin(), text.end(), text.begin(), ::tolower);
+      if (text.find("exception") != std::string::npos || text.find("what()") != std::string::npos) {
+        out.push_back(m->name + ": " + m->msg);
+      }
+    }
+    return out;
+  }
+
+ private:
+  ros::NodeHandle nh_;
+  Collector<rosgraph_msgs::Log> collector_;
+};
+
+RosoutErrors& rosoutErrors() {
+  static RosoutErrors* errors = new RosoutErrors();  // lives as long as the process's ROS
+  return *errors;
+}
+
 bool reconfigureInt(const std::string& node, const std::string& name, int value) {
   dynamic_reconfigure::Reconfigure srv;
   dynamic_reconfigure::IntParameter p;
@@ -68,13 +98,24 @@ bool reconfigureInt(const std::string& node, const std::string& name, int value)
   if (!ros::service::waitForService(node + "/set_parameters", 10000)) return false;
   // A call can fail at the transport (seen once in CI on a loaded 2-core machine: the second of
   // two back-to-back calls returned false while the node logged nothing); setting a parameter is
-  // idempotent, so it is tried again. What the test asserts is the effect: the values read back
-  // and the range the next disparity carries.
+  // idempotent, so it is tried again. Each failed call is recorded in the test's own result
+  // (property "set_parameters_failed_calls") and printed, and a failure that comes with an
+  // exception in any node's log fails the test: a callback that throws now and then must not pass
+  // on a retry. What the test asserts is the effect: the values read back and the range the next
+  // disparity carries.
   for (int attempt = 1; attempt <= 3; ++attempt) {
     if (ros::service::call(node + "/set_parameters", srv)) return true;
+    static int failed_calls = 0;
+    ::testing::Test::RecordProperty("set_parameters_failed_calls", ++failed_calls);
     std::fprintf(stderr, "[ WARN     ] %s/set_parameters %s=%d: call %d failed\n", node.c_str(),
                  name.c_str(), value, attempt);
-    ros::Duration(0.2).sleep();
+    ros::Duration(0.5).sleep();  // lets a log line of the failed call reach /rosout_agg
+    const std::vector<std::string> thrown = rosoutErrors().exceptions();
+    if (!thrown.empty()) {
+      ADD_FAILURE() << node << "/set_parameters failed and a node logged an exception: "
+                    << thrown.front();
+      return false;
+    }
   }
   return false;
 }
@@ -86,6 +127,7 @@ int intParam(const std::string& name) {
 }
 
 TEST(StereoImageProcParams, AUsersCommandLineGivesTheirRangeAndNamesWhatIsIgnored) {
+  rosoutErrors();  // listens from the start, for the reconfigure calls below
   const std::string node = "/sip_user/reconstruction";
   ros::NodeHandle pnh(node);
   // As `rosrun endo_stereo endo_stereo_node _min_disparity:=20 _disparity_range:=96
@@ -97,6 +139,9 @@ TEST(StereoImageProcParams, AUsersCommandLineGivesTheirRangeAndNamesWhatIsIgnore
   pnh.setParam("correlation_window_size", 15);
   pnh.setParam("speckle_size", 100);
   pnh.setParam("stereo_algorithm", 1);
+  // Names this node does not read: a misspelling and the other spelling of ~rectify/mode.
+  pnh.setParam("rectify_mode", std::string("pass_through"));
+  pnh.setParam("max_disparty", 99);
   // A preset's range, which the stereo_image_proc names take precedence over.
   pnh.setParam("matcher/min_disparity", 0);
   pnh.setParam("matcher/max_disparity", 63);
@@ -114,6 +159,13 @@ TEST(StereoImageProcParams, AUsersCommandLineGivesTheirRangeAndNamesWhatIsIgnore
     EXPECT_EQ(logs.find(ros::console::levels::Warn, {"~" + name + " "}).size(), 1u)
         << "not warned once about " << name;
   }
+  EXPECT_EQ(logs.find(ros::console::levels::Warn, {"~rectify_mode ", "did you mean ~rectify/mode?"})
+                .size(),
+            1u);
+  EXPECT_EQ(logs.find(ros::console::levels::Warn,
+                      {"~max_disparty ", "did you mean ~matcher/max_disparity?"})
+                .size(),
+            1u);
   for (const std::string name : {"min_disparity", "disparity_range", "approximate_sync",
                                   "queue_size"}) {
     EXPECT_TRUE(logs.find(ros::console::levels::Warn, {"~" + name + " "}).empty())
@@ -216,6 +268,7 @@ void expectSameCloud(const sensor_msgs::PointCloud2& ours, const sensor_msgs::Po
 }
 
 TEST(PointCloud2, StereoImageProcsCloudOfOurDisparityIsOurCloud) {
+  rosoutErrors();  // listens from the start, for the reconfigure calls below
   ros::NodeHandle nh;
   SurgicalSceneParams sp;
   sp.width = 320;

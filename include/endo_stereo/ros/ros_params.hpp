@@ -96,6 +96,9 @@ std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams
 /// Fill @p params from `~ros/<name>` then `~<name>`. @return "" or a message naming the parameter.
 std::string loadRosParams(const ros::NodeHandle& pnh, RosParams& params);
 
+/// The names loadRosParams() reads (each as `~<name>` and `~ros/<name>`), in a fixed order.
+std::vector<std::string> rosParamNames();
+
 /// Write @p params into the private namespace as `~section/field` (so `rosparam get` shows the
 /// parameters in use): every one, or with @p previous only those that differ from it (after a
 /// reconfigure).
