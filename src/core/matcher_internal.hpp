@@ -26,9 +26,6 @@ namespace detail {
 constexpr float kNegInf = -std::numeric_limits<float>::infinity();
 // Fixed stripes of rows, so the work split never depends on the thread count.
 constexpr int kStripeRows = 32;
-// Column blocks used to find, per disparity, the column intervals worth computing (narrowed
-// engine).
-constexpr int kBlock = 32;
 // Sentinel of an empty effective range.
 constexpr int kEmptyLo = std::numeric_limits<int>::max() / 2;
 constexpr int kEmptyHi = std::numeric_limits<int>::min() / 2;

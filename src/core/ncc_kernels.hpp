@@ -11,8 +11,8 @@
 // It is stated once here, as a fold over 8-lane groups of a profile (foldPeaks, per lane: the
 // lane's best, its index and the lane's best other maximum) and a reduction (pickPeak). The
 // full-range and sparse engines use exactly these two. The narrowed-range engine receives S one
-// disparity at a time for a whole row of pixels and applies the same rule in streaming form
-// (trackSliceImpl in search_narrowed.cpp); test_matcher checks that all engines agree with the
+// disparity at a time for 8 pixels and applies the same rule in streaming form
+// (chunkSearchImpl in search_narrowed.cpp); test_matcher checks that all engines agree with the
 // brute-force reference (reference_matcher.cpp), which states the rule in scalar form.
 #pragma once
 

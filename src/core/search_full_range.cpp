@@ -22,22 +22,6 @@ namespace detail {
 
 namespace {
 
-/// Layout of the right-to-left trackers (profilesForRow), 8 copies of `used` floats
-/// for the values and 8 for the disparities, chosen against 4K aliasing: a load whose address
-/// matches an earlier, still pending store's in the low 12 bits waits as if it depended on it.
-/// A pixel's tracker groups span up to 288 bytes of its copy; the next pixel uses the next copy
-/// 4 bytes lower. The copy stride is 1028 bytes mod 4 KiB, so the next 3 pixels' copies lie 1, 2
-/// and 3 KiB away (mod 4 KiB) from this one's; the disparities lie 512 bytes (mod 4 KiB) after
-/// the values, so no copy within 3 pixels overlaps another's stores there either. Layout only:
-/// the values computed are the same.
-inline void layoutTrackers(int used, int* stride, int* d_off) {
-  *stride = (used / 1024) * 1024 + 257;
-  if (*stride < used) *stride += 1024;
-  const int values = 8 * *stride;
-  *d_off = (values / 1024) * 1024 + 128;
-  if (*d_off < values) *d_off += 1024;
-}
-
 /// One 8-lane group of a dense pixel's profile: S for the lanes k .. k + 7, stored to prof, and
 /// the right-to-left offers; with kMasked only the lanes inside [klo, khi] offer.
 template <bool kMasked>
@@ -268,11 +252,11 @@ ES_KERNEL void profilesForRow(const FullRangeRowArgs& a) {
   }
 }
 
-/// Merge the 8 tracker copies into the first: the highest value, ties to the smallest d (the
-/// order-free form of "strict >, disparities in increasing order").
-ES_KERNEL void mergeTrackerCopies(float* __restrict rl_v, float* __restrict rl_d, int stride,
-                                  int n) {
-  for (int c = 1; c < 8; ++c) {
+/// Merge the first @p copies tracker copies into the first: the highest value, ties to the
+/// smallest d (the order-free form of "strict >, disparities in increasing order").
+ES_KERNEL void mergeCopies(float* __restrict rl_v, float* __restrict rl_d, int stride, int n,
+                           int copies) {
+  for (int c = 1; c < copies; ++c) {
     const float* __restrict v = rl_v + static_cast<size_t>(c) * stride;
     const float* __restrict d = rl_d + static_cast<size_t>(c) * stride;
     int i = 0;
@@ -291,6 +275,28 @@ ES_KERNEL void mergeTrackerCopies(float* __restrict rl_v, float* __restrict rl_d
 }
 
 }  // namespace
+
+/// Layout of the right-to-left trackers (profilesForRow; the narrowed engine's copies, one per
+/// disparity index mod 4, step the same way: the next disparity uses the next copy 4 bytes
+/// lower), 8 copies of `used` floats
+/// for the values and 8 for the disparities, chosen against 4K aliasing: a load whose address
+/// matches an earlier, still pending store's in the low 12 bits waits as if it depended on it.
+/// A pixel's tracker groups span up to 288 bytes of its copy; the next pixel uses the next copy
+/// 4 bytes lower. The copy stride is 1028 bytes mod 4 KiB, so the next 3 pixels' copies lie 1, 2
+/// and 3 KiB away (mod 4 KiB) from this one's; the disparities lie 512 bytes (mod 4 KiB) after
+/// the values, so no copy within 3 pixels overlaps another's stores there either. Layout only:
+/// the values computed are the same.
+void layoutTrackers(int used, int* stride, int* d_off) {
+  *stride = (used / 1024) * 1024 + 257;
+  if (*stride < used) *stride += 1024;
+  const int values = 8 * *stride;
+  *d_off = (values / 1024) * 1024 + 128;
+  if (*d_off < values) *d_off += 1024;
+}
+
+void mergeTrackerCopies(float* rl_v, float* rl_d, int stride, int n, int copies) {
+  mergeCopies(rl_v, rl_d, stride, n, copies);
+}
 
 void FullRangeScratch::ensure(int w, int dpad) {
   vsums.assign(static_cast<size_t>(w) * dpad + 8, 0.f);
@@ -394,7 +400,7 @@ void fullRangeRow(const WindowLevel& c, RowScratch& s, FullRangeScratch& e, int 
   sumColumnsForRow(a);
   e.vsum_row = y;
   profilesForRow(a);
-  mergeTrackerCopies(rl_v, rl_d, stride, used);
+  mergeCopies(rl_v, rl_d, stride, used, 8);
   for (int q = 0; q < W; ++q) s.rl_best_d[q] = rl_d[rp + W - 1 - q];
 }
 

@@ -39,6 +39,16 @@ struct FullRangeScratch {
   void resetSums();
 };
 
+/// Layout of 8 copies of right-to-left trackers of @p used floats each (the dense engines'):
+/// the stride from one copy to the next and the offset of the disparities' copies from the
+/// values', chosen against 4K aliasing between the copies.
+void layoutTrackers(int used, int* stride, int* d_off);
+
+/// Merge the first @p copies (<= 8) right-to-left tracker copies (values @p rl_v, disparities
+/// @p rl_d, @p stride floats apart, @p n entries each) into the first: the highest value, ties
+/// to the smallest d.
+void mergeTrackerCopies(float* rl_v, float* rl_d, int stride, int n, int copies);
+
 /// Peak analysis (RowScratch::best ...) of the active pixels (RowScratch::act) and the
 /// right-to-left best disparity of every right pixel (RowScratch::rl_best_d) of row y.
 void fullRangeRow(const WindowLevel& c, RowScratch& s, FullRangeScratch& e, int y);

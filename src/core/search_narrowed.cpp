@@ -1,9 +1,11 @@
 // The narrowed-range search engine (see search_narrowed.hpp): dense rows with per-pixel search
-// ranges. For each disparity d (in increasing order) only the column intervals whose pixels
-// search d are computed (buildIntervals); their vertical window sums are made valid for the row
-// (ensureV: kept, one row in and one out, or afresh), summed horizontally and turned into the NCC
-// slice S(., d), which feeds each pixel's streaming peak tracker and the right-to-left tracker of
-// each right pixel x - d (trackSliceImpl).
+// ranges. The row is cut into chunks of 8 columns; a chunk's band is the union of its pixels'
+// effective ranges (chunkBands). For each disparity the columns that the chunks searching it
+// read are gathered into intervals (intervalsOfRow) and their vertical window sums made valid for
+// the row (ensureV: kept, one row in and one row out, or afresh). Then each chunk runs through
+// its band in increasing d (chunkSearch): the horizontal window sums of its 8 pixels, the NCC
+// S(., d), each pixel's streaming peak tracker in registers, and the right-to-left tracker of
+// each right pixel x - d.
 
 #include "search_narrowed.hpp"
 
@@ -11,6 +13,7 @@
 #include <cstring>
 
 #include "ncc_kernels.hpp"
+#include "search_full_range.hpp"
 #include "simd.hpp"
 
 namespace endo_stereo {
@@ -19,6 +22,10 @@ namespace detail {
 namespace {
 
 using namespace simd;
+
+// Right-to-left tracker copies (see chunkSearchImpl), one per disparity index mod kCopies.
+constexpr int kCopies = 4;
+
 // Sum of w consecutive 8-lane loads starting at p, with four partial sums so the additions do
 // not form one long dependency chain (exact: integer-valued data).
 ES_INLINE V8f boxSum8(const float* p, int w) {
@@ -39,206 +46,189 @@ ES_INLINE V8f boxSum8(const float* p, int w) {
   return (a0 + a1) + (a2 + a3);
 }
 
+// Vertical sums, eight columns per vector and the last up to 7 one by one (the intervals are
+// short, tens of columns at a stripe's first row: a wider vector would leave a long scalar tail).
 ES_KERNEL void vRunning(int n, float* __restrict v, const float* __restrict l_in,
                         const float* __restrict r_in, const float* __restrict l_out,
                         const float* __restrict r_out) {
-  for (int i = 0; i < n; ++i) v[i] += l_in[i] * r_in[i] - l_out[i] * r_out[i];
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    store8(v + i, load8(v + i) + (load8(l_in + i) * load8(r_in + i) -
+                                  load8(l_out + i) * load8(r_out + i)));
+  }
+  for (; i < n; ++i) v[i] += l_in[i] * r_in[i] - l_out[i] * r_out[i];
 }
 
-ES_KERNEL void vSet(int n, float* __restrict v, const float* __restrict l,
-                    const float* __restrict r) {
-  for (int i = 0; i < n; ++i) v[i] = l[i] * r[i];
-}
-
-ES_KERNEL void vAdd(int n, float* __restrict v, const float* __restrict l,
-                    const float* __restrict r) {
-  for (int i = 0; i < n; ++i) v[i] += l[i] * r[i];
-}
-
-ES_KERNEL void addShifted(int n, float* __restrict out, const float* __restrict in) {
-  for (int i = 0; i < n; ++i) out[i] += in[i];
-}
-
-ES_KERNEL void copyShifted(int n, float* __restrict out, const float* __restrict in) {
-  for (int i = 0; i < n; ++i) out[i] = in[i];
-}
-
-ES_KERNEL void pairSum(int n, float* __restrict out, const float* __restrict a,
-                       const float* __restrict b) {
-  for (int i = 0; i < n; ++i) out[i] = a[i] + b[i];
-}
-
-/// out[i] = sum_{j < w} in[i + j] for i in [0, n): sums of 2, 4, 8, 16 neighbours built by
-/// doubling, so the cost is O(n log w) in vectorisable passes. Exact on the integer-valued data.
-void boxSumRow(const float* in, int n, int w, float* out, float* ta, float* tb) {
-  const float* cur = in;  // sums of `span` consecutive inputs, valid for indices [0, len)
-  int span = 1;
-  int len = n + w - 1;
-  int offset = 0;
-  bool first = true;
-  float* bufs[2] = {ta, tb};
-  int which = 0;
-  int rest = w;
-  while (true) {
-    if (rest & 1) {
-      if (first) {
-        copyShifted(n, out, cur + offset);
-        first = false;
-      } else {
-        addShifted(n, out, cur + offset);
-      }
-      offset += span;
-    }
-    rest >>= 1;
-    if (!rest) break;
-    float* nxt = bufs[which];
-    which ^= 1;
-    const int nlen = len - span;
-    pairSum(nlen, nxt, cur, cur + span);
-    cur = nxt;
-    len = nlen;
-    span *= 2;
+/// n columns of vertical window sums afresh: v[i] = sum over the w rows of l[j][i] * r[j][i]
+/// (rows given as pointers; exact, so the order of additions cannot matter).
+ES_KERNEL void vFresh(int n, int w, float* __restrict v, const float* const* l,
+                      const float* const* r) {
+  int i = 0;
+  for (; i + 8 <= n; i += 8) {
+    V8f acc = load8(l[0] + i) * load8(r[0] + i);
+    for (int j = 1; j < w; ++j) acc += load8(l[j] + i) * load8(r[j] + i);
+    store8(v + i, acc);
+  }
+  for (; i < n; ++i) {
+    float acc = l[0][i] * r[0][i];
+    for (int j = 1; j < w; ++j) acc += l[j][i] * r[j][i];
+    v[i] = acc;
   }
 }
 
-/// Inputs of the per-disparity update of one row interval. Pointers are offset so
-/// that index i is column x = a + i (left quantities) or right column x - d (right quantities and
-/// rb_*). When v is set, the horizontal window sum is taken from it directly (w loads per value,
-/// cheaper than the doubling passes for small windows); otherwise h holds it.
-struct SliceArgs {
-  int n;
-  int w;
-  float d;
-  const float* v;  // vertical sums at column x - r, or null
-  const float* h;  // window sums of L * R(x - d), when v is null
-  const float* mean_l;
-  const float* inv_l;
-  const float* sum_r;  // at x - d
-  const float* inv_r;  // at x - d
+/// Inputs of chunkSearch for one row (pointers into the scratch and the row's arrays).
+struct ChunkArgs {
+  int w, r, dmin, nd;
+  int num_chunks;
+  const int* band_lo;  // per chunk, disparity indices (lo > hi: empty)
+  const int* band_hi;
+  const float* v;  // vertical sums of disparity index 0, column 0; rows v_stride apart
+  int v_stride;
   const float* eff_lo_f;
   const float* eff_hi_f;
   const float* act;
-  float *p1, *p2, *best, *best_d, *best_l, *best_r, *second;
-  float *rl_best_v, *rl_best_d;  // at x - d
+  const float* mean_l;
+  const float* inv_l;
+  const float* sum_r_q;  // right statistics, index x - k + nd + 7
+  const float* inv_r_q;
+  float* rl_v;  // copy 0 of the right-to-left trackers, same index
+  float* rl_d;
+  int rl_copy_stride;
+  float *best, *best_d, *best_l, *best_r, *second;
 };
 
-// The streaming peak tracker. At disparity d a pixel knows S(d-2), S(d-1) (p2, p1) and S(d):
-// d-1 is an interior local maximum when S(d-1) > S(d-2) and S(d-1) >= S(d) with d-2 inside its
-// range. The highest interior maximum is the best (its neighbours kept for the parabola); every
-// other maximum, and a range end where the profile rises towards it (the true peak may lie
-// beyond), competes for the peak gap. Local maxima are never adjacent, so "outside +-1 px of the
-// best" holds by construction. Written once on GCC vector types (8 lanes: AVX2 in the avx2 clone,
-// two SSE halves otherwise) for the body, once in scalar form for the tail; the same lane by lane.
-template <bool kOwn, bool kRl, int kW>
-ES_INLINE void trackSliceImpl(const SliceArgs& g) {
-  const float d = g.d, dm1 = g.d - 1.f;
-  const float* __restrict vs = g.v;
-  const float* __restrict h = g.h;
-  const float* __restrict mean_l = g.mean_l;
-  const float* __restrict inv_l = g.inv_l;
-  const float* __restrict sum_r = g.sum_r;
-  const float* __restrict inv_r = g.inv_r;
-  const float* __restrict eff_lo_f = g.eff_lo_f;
-  const float* __restrict eff_hi_f = g.eff_hi_f;
-  const float* __restrict act = g.act;
-  float* __restrict p1 = g.p1;
-  float* __restrict p2 = g.p2;
-  float* __restrict best = g.best;
-  float* __restrict best_d = g.best_d;
-  float* __restrict best_l = g.best_l;
-  float* __restrict best_r = g.best_r;
-  float* __restrict second = g.second;
-  float* __restrict rl_best_v = g.rl_best_v;
-  float* __restrict rl_best_d = g.rl_best_d;
+// The streaming peak tracker of the 8 pixels of a chunk, in registers. At disparity d a pixel
+// knows S(d-2), S(d-1) (p2, p1) and S(d): d-1 is an interior local maximum when S(d-1) > S(d-2)
+// and S(d-1) >= S(d) with d-2 inside its range. The highest interior maximum is the best (its
+// neighbours kept for the parabola); every other maximum, and a range end where the profile rises
+// towards it (the true peak may lie beyond), competes for the peak gap. Local maxima are never
+// adjacent, so "outside +-1 px of the best" holds by construction (the peak rule of
+// ncc_kernels.hpp in streaming form). A lane takes part only at the disparities of its own range
+// (own); the other lanes of the band compute values that no decision reads.
+//
+// The right-to-left trackers come in kCopies copies, one per disparity index mod kCopies:
+// consecutive disparities of a chunk address right pixels one lane apart, and a load overlapping
+// the previous disparity's stores by all but one lane would stall (no store forwarding); within a
+// copy the stores of one chunk lie kCopies lanes apart, four disparities back, long written to
+// the cache (4 copies measured no slower in this kernel than 8, with half the clearing and
+// merging), and the next chunk's land on whole vectors of them. Each right pixel receives its
+// offers in increasing d (chunks in increasing x, each in increasing d), so strict > keeps the
+// smallest d within a copy; the copies are merged with ties to the smallest d
+// (mergeTrackerCopies): the same value and disparity as one tracker offered every d in
+// increasing order.
+template <int kW>
+ES_INLINE void chunkSearchImpl(const ChunkArgs& g) {
+  // Every argument in a local: the stores (through memcpy) may alias anything, so the fields of
+  // g would be read again after each one.
   const int w = kW > 0 ? kW : g.w;
-  int i = 0;
-  const int n = g.n;
-  const V8f vd = splat8(d);
-  const V8f vdm1 = splat8(dm1);
-  const V8f vninf = splat8(kNegInf);
-  const V8f vzero = splat8(0.f);
-  for (; i + 8 <= n; i += 8) {
-    // With the window width known at compile time (kW) the horizontal sum unrolls: the first
-    // window is where almost all pixels are decided.
-    const V8f hs = (kW > 0 || vs) ? boxSum8(vs + i, w) : load8(h + i);
-    const V8f s = (hs - load8(mean_l + i) * load8(sum_r + i)) * load8(inv_l + i) * load8(inv_r + i);
-    const V8f lo = load8(eff_lo_f + i), hi = load8(eff_hi_f + i);
-    const V8i inr = (lo <= vd) & (vd <= hi);
-    if (kOwn) {
-      const V8i own = inr & (load8(act + i) > vzero);
-      const V8f a1 = load8(p1 + i), a2 = load8(p2 + i), bb = load8(best + i);
-      const V8i is_max = own & (vd >= lo + 2.f) & (a1 > a2) & (a1 >= s);
-      const V8i new_best = is_max & (a1 > bb);
-      V8f cand = new_best ? bb : (is_max ? a1 : vninf);
-      const V8i lo_end = own & (vd == lo + 1.f) & (a1 > s);
-      const V8i hi_end = own & (vd == hi) & (s > a1);
-      cand = max8(cand, lo_end ? a1 : vninf);
+  const int num_chunks = g.num_chunks, r = g.r, nd = g.nd;
+  const size_t v_stride = static_cast<size_t>(g.v_stride);
+  const size_t rl_stride = static_cast<size_t>(g.rl_copy_stride);
+  const float dmin_f = static_cast<float>(g.dmin);
+  const int* const band_lo = g.band_lo;
+  const int* const band_hi = g.band_hi;
+  const float* const v = g.v;
+  const float* const eff_lo_f = g.eff_lo_f;
+  const float* const eff_hi_f = g.eff_hi_f;
+  const float* const act_f = g.act;
+  const float* const mean_l = g.mean_l;
+  const float* const inv_l = g.inv_l;
+  const float* const sum_r_q = g.sum_r_q;
+  const float* const inv_r_q = g.inv_r_q;
+  float* const rl_v = g.rl_v;
+  float* const rl_d = g.rl_d;
+  float* const best_out = g.best;
+  float* const best_d_out = g.best_d;
+  float* const best_l_out = g.best_l;
+  float* const best_r_out = g.best_r;
+  float* const second_out = g.second;
+  const V8f vninf = splat8(kNegInf), vzero = splat8(0.f);
+  const V8f one = splat8(1.f), two = splat8(2.f);
+  size_t copy_off[8];
+  for (int c = 0; c < 8; ++c) copy_off[c] = static_cast<size_t>(c % kCopies) * rl_stride;
+  for (int j = 0; j < num_chunks; ++j) {
+    const int k0 = band_lo[j], k1 = band_hi[j];
+    if (k0 > k1) continue;
+    const int x0 = 8 * j;
+    const V8f lo = load8(eff_lo_f + x0), hi = load8(eff_hi_f + x0);
+    const V8f lo1 = lo + one, lo2 = lo + two;
+    const V8i act = load8(act_f + x0) > vzero;
+    const V8f ml = load8(mean_l + x0), il = load8(inv_l + x0);
+    V8f p1 = vninf, p2 = vninf, best = vninf, second = vninf;
+    V8f best_d = vzero, best_l = vzero, best_r = vzero;
+    const float* vs = v + static_cast<size_t>(k0) * v_stride + x0 - r;
+    // Right pixel x0 - d_k at index qi; it moves one lane down per disparity.
+    const float* srq = sum_r_q + (x0 + nd + 7 - k0);
+    const float* irq = inv_r_q + (x0 + nd + 7 - k0);
+    float* rvq = rl_v + (x0 + nd + 7 - k0);
+    float* rdq = rl_d + (x0 + nd + 7 - k0);
+    V8f vd = splat8(dmin_f + static_cast<float>(k0));  // exact: small integers
+    for (int k = k0; k <= k1; ++k, vs += v_stride, --srq, --irq, --rvq, --rdq, vd += one) {
+      const V8f hs = boxSum8(vs, w);
+      const V8f s = (hs - ml * load8(srq)) * il * load8(irq);
+      const V8i inr = (lo <= vd) & (vd <= hi);
+      const V8i own = inr & act;
+      const V8i is_max = own & (vd >= lo2) & (p1 > p2) & (p1 >= s);
+      const V8i new_best = is_max & (p1 > best);
+      V8f cand = new_best ? best : (is_max ? p1 : vninf);
+      const V8i lo_end = own & (vd == lo1) & (p1 > s);
+      const V8i hi_end = own & (vd == hi) & (s > p1);
+      cand = max8(cand, lo_end ? p1 : vninf);
       cand = max8(cand, hi_end ? s : vninf);
-      store8(second + i, max8(load8(second + i), cand));
-      if (anyLane(new_best)) {  // rare once the profile has risen: skip the selects and stores
-        store8(best + i, new_best ? a1 : bb);
-        store8(best_d + i, new_best ? vdm1 : load8(best_d + i));
-        store8(best_l + i, new_best ? a2 : load8(best_l + i));
-        store8(best_r + i, new_best ? s : load8(best_r + i));
-      }
-      store8(p2 + i, own ? a1 : a2);
-      store8(p1 + i, own ? s : a1);
-    }
-    if (kRl) {
-      // Right-to-left profile of right pixel x - d: S_RL(x - d, d) = S_LR(x, d). Strict > keeps
-      // the smallest disparity among equal values (d increases).
-      const V8f rv = load8(rl_best_v + i);
+      second = max8(second, cand);
+      best = new_best ? p1 : best;
+      best_d = new_best ? vd - one : best_d;
+      best_l = new_best ? p2 : best_l;
+      best_r = new_best ? s : best_r;
+      p2 = own ? p1 : p2;
+      p1 = own ? s : p1;
+      // Right-to-left: S_RL(x - d, d) = S_LR(x, d), in copy k mod 8.
+      const size_t copy = copy_off[k & 7];  // k mod kCopies
+      float* rv_p = rvq + copy;
+      float* rd_p = rdq + copy;
+      const V8f rv = load8(rv_p);
       const V8i up = inr & (s > rv);
-      store8(rl_best_v + i, up ? s : rv);
-      store8(rl_best_d + i, up ? vd : load8(rl_best_d + i));
+      store8(rv_p, up ? s : rv);
+      store8(rd_p, up ? vd : load8(rd_p));
     }
+    store8(best_out + x0, best);
+    store8(best_d_out + x0, best_d);
+    store8(best_l_out + x0, best_l);
+    store8(best_r_out + x0, best_r);
+    store8(second_out + x0, second);
   }
-  for (; i < n; ++i) {
-    float hs;
-    if (vs) {
-      hs = vs[i];
-      for (int j = 1; j < w; ++j) hs += vs[i + j];
-    } else {
-      hs = h[i];
+}
+
+ES_KERNEL void chunkSearch(const ChunkArgs& g) { chunkSearchImpl<0>(g); }
+// The window widths of the presets' first window (9: default, 7: paper), where nearly all
+// narrowed pixels are decided: the horizontal sums unroll.
+ES_KERNEL void chunkSearchWidth9(const ChunkArgs& g) { chunkSearchImpl<9>(g); }
+ES_KERNEL void chunkSearchWidth7(const ChunkArgs& g) { chunkSearchImpl<7>(g); }
+
+/// The right-to-left tracker copies emptied on n entries: value -inf, disparity 0.
+ES_KERNEL void clearTrackers(float* __restrict rl_v, float* __restrict rl_d, int stride, int n) {
+  const V8f ninf = splat8(kNegInf), zero = splat8(0.f);
+  for (int c = 0; c < kCopies; ++c) {
+    float* __restrict v = rl_v + static_cast<size_t>(c) * stride;
+    float* __restrict d = rl_d + static_cast<size_t>(c) * stride;
+    int i = 0;
+    for (; i + 8 <= n; i += 8) {
+      store8(v + i, ninf);
+      store8(d + i, zero);
     }
-    const float s = (hs - mean_l[i] * sum_r[i]) * inv_l[i] * inv_r[i];
-    const bool inr = (eff_lo_f[i] <= d) & (d <= eff_hi_f[i]);
-    if (kOwn) {
-      const bool own = inr & (act[i] > 0.f);
-      const float a1 = p1[i], a2 = p2[i], bb = best[i];
-      const bool is_max = own & (d >= eff_lo_f[i] + 2.f) & (a1 > a2) & (a1 >= s);
-      const bool new_best = is_max & (a1 > bb);
-      float cand = new_best ? bb : (is_max ? a1 : kNegInf);
-      const bool lo_end = own & (d == eff_lo_f[i] + 1.f) & (a1 > s);
-      const bool hi_end = own & (d == eff_hi_f[i]) & (s > a1);
-      cand = std::max(cand, lo_end ? a1 : kNegInf);
-      cand = std::max(cand, hi_end ? s : kNegInf);
-      second[i] = std::max(second[i], cand);
-      best[i] = new_best ? a1 : bb;
-      best_d[i] = new_best ? dm1 : best_d[i];
-      best_l[i] = new_best ? a2 : best_l[i];
-      best_r[i] = new_best ? s : best_r[i];
-      p2[i] = own ? a1 : a2;
-      p1[i] = own ? s : a1;
-    }
-    if (kRl) {
-      const float rv = rl_best_v[i];
-      const bool up = inr & (s > rv);
-      rl_best_v[i] = up ? s : rv;
-      rl_best_d[i] = up ? d : rl_best_d[i];
+    for (; i < n; ++i) {
+      v[i] = kNegInf;
+      d[i] = 0.f;
     }
   }
 }
 
-ES_KERNEL void trackSlice(const SliceArgs& g) { trackSliceImpl<true, true, 0>(g); }
-ES_KERNEL void trackSliceWidth7(const SliceArgs& g) { trackSliceImpl<true, true, 7>(g); }
-
-/// Make the vertical window sums of disparity index k valid on the columns @p need (sorted,
-/// disjoint intervals) of row y: columns already computed for row y are kept, columns valid for
-/// row y - 1 are updated by one row in and one row out, the rest are summed afresh over the
-/// window's rows. All exact, so the three ways give identical values.
-void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y,
-             const std::vector<Interval>& need) {
+/// Make the vertical window sums of disparity index k valid on the columns need[0 .. count)
+/// (sorted, disjoint intervals) of row y: columns already computed for row y are kept, columns
+/// valid for row y - 1 are updated by one row in and one row out, the rest are summed afresh
+/// over the window's rows. All exact, so the three ways give identical values.
+void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y, const Interval* need,
+             int count) {
   const int d = c.dmin + k;
   const int r = c.r;
   const cv::Mat& lf = c.im->lf;
@@ -253,24 +243,25 @@ void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y,
     vv.cur.clear();
     vv.cur_row = y;
   }
-  float* v = e.v.data() + static_cast<size_t>(k) * c.width;
-  // The common case: the same intervals as on the previous row (a smooth range map moves its
-  // intervals only now and then).
-  if (vv.cur.empty() && vv.prev.size() == need.size() &&
-      std::equal(need.begin(), need.end(), vv.prev.begin(),
+  float* v = e.v.data() + static_cast<size_t>(k) * e.v_stride + e.v_pad;
+  // The common case: the same intervals as on the previous row (smooth ranges move their
+  // chunks' bands only now and then).
+  if (vv.cur.empty() && vv.prev.size() == static_cast<size_t>(count) &&
+      std::equal(need, need + count, vv.prev.begin(),
                  [](const Interval& p, const Interval& q) { return p.a == q.a && p.b == q.b; })) {
-    for (const Interval& iv : need) {
-      const int ra = iv.a, n = iv.b - ra + 1;
+    for (int i = 0; i < count; ++i) {
+      const int ra = need[i].a, n = need[i].b - ra + 1;
       vRunning(n, v + ra, lf.ptr<float>(y + r) + ra, rf.ptr<float>(y + r) + ra - d,
                lf.ptr<float>(y - r - 1) + ra, rf.ptr<float>(y - r - 1) + ra - d);
     }
-    vv.cur = need;
+    vv.cur.assign(need, need + count);
     return;
   }
   // pieces := need minus cur.
   e.pieces.clear();
   size_t ci = 0;
-  for (const Interval& nv : need) {
+  for (int i = 0; i < count; ++i) {
+    const Interval& nv = need[i];
     int x = nv.a;
     while (ci < vv.cur.size() && vv.cur[ci].b < x) ++ci;
     for (size_t j = ci; j < vv.cur.size() && vv.cur[j].a <= nv.b; ++j) {
@@ -280,12 +271,14 @@ void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y,
     if (x <= nv.b) e.pieces.push_back({x, nv.b});
   }
   if (e.pieces.empty()) return;
+  const float* l_rows[33];
+  const float* r_rows[33];
   auto fresh = [&](int fa, int fb) {
-    const int n = fb - fa + 1;
-    vSet(n, v + fa, lf.ptr<float>(y - r) + fa, rf.ptr<float>(y - r) + fa - d);
-    for (int yy = y - r + 1; yy <= y + r; ++yy) {
-      vAdd(n, v + fa, lf.ptr<float>(yy) + fa, rf.ptr<float>(yy) + fa - d);
+    for (int j = 0; j < c.w; ++j) {
+      l_rows[j] = lf.ptr<float>(y - r + j) + fa;
+      r_rows[j] = rf.ptr<float>(y - r + j) + fa - d;
     }
+    vFresh(fb - fa + 1, c.w, v + fa, l_rows, r_rows);
   };
   size_t pi = 0;
   for (const Interval& p : e.pieces) {
@@ -320,171 +313,86 @@ void ensureV(const WindowLevel& c, NarrowedScratch& e, int k, int y,
   std::swap(vv.cur, e.merged);
 }
 
-/// For each disparity, the column intervals worth computing: the hull, within each block of
-/// kBlock columns, of the columns @p cols (sorted), for the blocks where one of them has the
-/// disparity in its effective range; intervals closer than a window width are merged (their
-/// vertical sums overlap anyway). Clipped to the columns where both windows fit. Results in
-/// e.ivs / e.iv_start. Cost O(columns + blocks * disparities).
-void buildIntervals(const WindowLevel& c, RowScratch& s, NarrowedScratch& e,
-                    const std::vector<int>& cols) {
-  const int W = c.width, nd = c.dmax - c.dmin + 1, r = c.r;
-  const int nb = static_cast<int>(e.block_a.size());
-  // Coverage per block as a difference array over the disparity indices (kept all zero between
-  // calls: only the indices a block touched are cleared again below), and the span it touches.
-  // Only coverage > 0 matters, so a pixel with the same range as the pixel before it in its
-  // block adds nothing (the common case: neighbours' ranges are alike), and skipping it also
-  // spares the chain of increments of one counter, each waiting for the one before.
-  e.blocks.clear();
-  int last_k0 = -1, last_k1 = -1, cur_b = -1;
-  const int* __restrict eff_lo_f = s.eff_lo.data();
-  const int* __restrict eff_hi_f = s.eff_hi.data();
-  int* __restrict block_a = e.block_a.data();
-  int* __restrict block_b = e.block_b.data();
-  int* __restrict block_k0 = e.block_k0.data();
-  int* __restrict block_k1 = e.block_k1.data();
-  int* __restrict cover = e.cover.data();
-  const int dmin = c.dmin;
-  for (const int x : cols) {
-    const int b = x / kBlock;  // x >= 0
-    const int k0 = eff_lo_f[x] - dmin, k1 = eff_hi_f[x] - dmin;
-    if (b != cur_b) {
-      cur_b = b;
-      e.blocks.push_back(b);
-      block_a[b] = x;
-      block_k0[b] = nd;
-      block_k1[b] = -1;
-    } else if (k0 == last_k0 && k1 == last_k1) {
-      block_b[b] = x;
-      continue;
-    }
-    last_k0 = k0;
-    last_k1 = k1;
-    int* cv = cover + static_cast<size_t>(b) * (nd + 1);
-    ++cv[k0];
-    --cv[k1 + 1];
-    block_k0[b] = std::min(block_k0[b], k0);
-    block_k1[b] = std::max(block_k1[b], k1);
-    block_b[b] = x;
+/// Each chunk's band: the least and greatest disparity index of its 8 pixels' effective ranges
+/// (empty: 0 > -1), from the float ranges (empty: 1e9 > -1e9; readable up to 8 num_chunks).
+/// @return the number of chunks with a band.
+ES_KERNEL int chunkBands(const float* __restrict eff_lo_f, const float* __restrict eff_hi_f,
+                         int num_chunks, float dmin, int* __restrict band_lo,
+                         int* __restrict band_hi) {
+  int n = 0;
+  for (int j = 0; j < num_chunks; ++j) {
+    const V8f lo = load8(eff_lo_f + 8 * j), hi = load8(eff_hi_f + 8 * j);
+    const float a = -hmax8(-lo)[0], b = hmax8(hi)[0];
+    const bool any = a <= b;
+    // Exact: small integers.
+    band_lo[j] = any ? static_cast<int>(a - dmin) : 0;
+    band_hi[j] = any ? static_cast<int>(b - dmin) : -1;
+    n += any;
   }
-  // Blocks in column order, each over the disparities it covers: every disparity's intervals
-  // come out sorted by column and merged exactly as a scan of all blocks per disparity would.
+  return n;
+}
+
+/// For each disparity index k, the columns whose vertical sums the chunks with k in their band
+/// read ([8 j - r, 8 j + 7 + r] for chunk j), clipped to the columns where the sums exist
+/// (both images), as sorted intervals; runs of chunks closer than a window width are merged
+/// (their sums overlap anyway). Bands change little from chunk to chunk, so the runs are found
+/// from the bands' differences: O(chunks + band changes), not O(chunks x band width).
+void intervalsOfRow(const WindowLevel& c, NarrowedScratch& e, int num_chunks) {
+  const int W = c.width, r = c.r, nd = c.dmax - c.dmin + 1;
   std::fill(e.iv_count.begin(), e.iv_count.begin() + nd, 0);
-  for (int b : e.blocks) {
-    int* cv = e.cover.data() + static_cast<size_t>(b) * (nd + 1);
-    const int k0 = e.block_k0[b], k1 = e.block_k1[b];
-    int count = 0;
-    for (int k = k0; k <= k1; ++k) {
-      count += cv[k];
-      cv[k] = 0;
-      if (count <= 0) continue;
-      const int d = c.dmin + k;
-      const int lo = std::max(r, d + r), hi = std::min(W - 1 - r, d + W - 1 - r);
-      const int a = std::max(lo, e.block_a[b]), end = std::min(hi, e.block_b[b]);
-      if (a > end) continue;
-      Interval* list = e.iv_by_k.data() + static_cast<size_t>(k) * nb;
-      int& n = e.iv_count[k];
-      if (n > 0 && list[n - 1].b + c.w >= a) {
-        list[n - 1].b = end;
-      } else {
-        list[n++] = {a, end};
-      }
-    }
-    cv[k1 + 1] = 0;
-  }
-  e.ivs.clear();
-  for (int k = 0; k < nd; ++k) {
-    e.iv_start[k] = static_cast<int>(e.ivs.size());
-    const Interval* list = e.iv_by_k.data() + static_cast<size_t>(k) * nb;
-    e.ivs.insert(e.ivs.end(), list, list + e.iv_count[k]);
-  }
-  e.iv_start[nd] = static_cast<int>(e.ivs.size());
-}
-
-/// NCC slice of disparity index k over columns [a, b] of row y, fed to the peak tracker (own
-/// profiles and right-to-left profiles); the vertical sums v (of disparity k) must be valid on
-/// [a - r, b + r].
-void sliceRange(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int a, int b,
-                const float* v) {
-  const int d = c.dmin + k;
-  const int r = c.r;
-  // Up to 15 columns the horizontal sum is read straight from the vertical sums inside the
-  // tracker; beyond, the doubling passes are cheaper.
-  const bool direct = c.w <= 15;
-  {
-    const int ra = a, rb = b;
-    if (ra > rb) return;
-    const int n = rb - ra + 1;
-    SliceArgs g;
-    g.n = n;
-    g.w = c.w;
-    g.d = static_cast<float>(d);
-    if (direct) {
-      g.v = v + ra - r;
-      g.h = nullptr;
+  auto close = [&](int k, int j_end) {
+    const int d = c.dmin + k;
+    const int a = std::max({8 * e.run_from[k] - r, 0, d});
+    const int b = std::min({8 * j_end + 7 + r, W - 1, W - 1 + d});
+    if (a > b) return;
+    Interval* list = e.iv_by_k.data() + static_cast<size_t>(k) * e.iv_cap;
+    int& n = e.iv_count[k];
+    if (n > 0 && list[n - 1].b + c.w >= a) {
+      list[n - 1].b = b;
     } else {
-      boxSumRow(v + ra - r, n, c.w, e.hsum.data(), e.box_tmp_a.data(), e.box_tmp_b.data());
-      g.v = nullptr;
-      g.h = e.hsum.data();
+      list[n++] = {a, b};
     }
-    g.mean_l = s.maps.mean_l.data() + ra;
-    g.inv_l = s.maps.inv_l.data() + ra;
-    g.sum_r = s.maps.sum_r.data() + ra - d;
-    g.inv_r = s.maps.inv_r.data() + ra - d;
-    g.eff_lo_f = s.eff_lo_f.data() + ra;
-    g.eff_hi_f = s.eff_hi_f.data() + ra;
-    g.act = s.act.data() + ra;
-    g.p1 = e.p1.data() + ra;
-    g.p2 = e.p2.data() + ra;
-    g.best = s.best.data() + ra;
-    g.best_d = s.best_d.data() + ra;
-    g.best_l = s.best_l.data() + ra;
-    g.best_r = s.best_r.data() + ra;
-    g.second = s.second.data() + ra;
-    g.rl_best_v = s.rl_best_v.data() + ra - d;
-    g.rl_best_d = s.rl_best_d.data() + ra - d;
-    if (direct && c.w == 7) {
-      trackSliceWidth7(g);
-    } else {
-      trackSlice(g);
-    }
+  };
+  int pa = 0, pb = -1;  // the previous chunk's band
+  for (int j = 0; j < num_chunks; ++j) {
+    const int a = e.band_lo[j], b = e.band_hi[j];
+    if (a == pa && b == pb) continue;
+    // Runs ending at chunk j - 1: the previous band minus this one.
+    for (int k = pa; k <= std::min(pb, a - 1); ++k) close(k, j - 1);
+    for (int k = std::max(pa, b + 1); k <= pb; ++k) close(k, j - 1);
+    // Runs starting here: this band minus the previous one.
+    for (int k = a; k <= std::min(b, pa - 1); ++k) e.run_from[k] = j;
+    for (int k = std::max(a, pb + 1); k <= b; ++k) e.run_from[k] = j;
+    pa = a;
+    pb = b;
   }
-}
-
-/// NCC slices of disparity index k over the column intervals @p out_ivs (sorted, disjoint) of
-/// row y (per-pixel ranges).
-void narrowedSlices(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int k, int y,
-                    const Interval* out_ivs, int count) {
-  if (count <= 0) return;
-  const int r = c.r;
-  e.need.clear();
-  for (int i = 0; i < count; ++i) {
-    const int a = out_ivs[i].a - r, b = out_ivs[i].b + r;
-    if (!e.need.empty() && a <= e.need.back().b + 1) {
-      e.need.back().b = std::max(e.need.back().b, b);
-    } else {
-      e.need.push_back({a, b});
-    }
-  }
-  ensureV(c, e, k, y, e.need);
-  const float* v = e.v.data() + static_cast<size_t>(k) * c.width;
-  for (int i = 0; i < count; ++i) sliceRange(c, s, e, k, out_ivs[i].a, out_ivs[i].b, v);
+  for (int k = pa; k <= pb; ++k) close(k, num_chunks - 1);
 }
 
 }  // namespace
 
 void NarrowedScratch::ensure(int w, int nd) {
-  v.assign(static_cast<size_t>(nd) * w, 0.f);
+  // Box sums of a chunk read columns 8 j - r .. 8 j + 7 + r, j < ceil(W / 8): within
+  // [-16, W + 24) for windows up to 33 px.
+  v_pad = 32;
+  v_stride = w + 2 * v_pad + 8;
+  v.assign(static_cast<size_t>(nd) * v_stride, 0.f);
   valid.assign(nd, VValidity{});
-  for (auto* vec : {&box_tmp_a, &box_tmp_b, &hsum, &p1, &p2}) vec->assign(w + 64, 0.f);
-  const int nb = (w + kBlock - 1) / kBlock;
-  cover.assign(static_cast<size_t>(nb) * (nd + 1), 0);
-  iv_start.assign(nd + 1, 0);
-  block_a.assign(nb, 0);
-  block_b.assign(nb, 0);
-  block_k0.assign(nb, 0);
-  block_k1.assign(nb, -1);
+  const int nc = (w + 7) / 8;
+  band_lo.assign(nc, 0);
+  band_hi.assign(nc, -1);
+  run_from.assign(nd, 0);
   iv_count.assign(nd, 0);
-  iv_by_k.assign(static_cast<size_t>(nd) * nb, Interval{0, -1});
+  iv_cap = nc + 1;
+  iv_by_k.assign(static_cast<size_t>(nd) * iv_cap, Interval{0, -1});
+  // Index x - k + nd + 7 for 0 <= x < 8 nc, 0 <= k < nd: within [8, 8 nc + nd + 7), whole
+  // vectors from there.
+  q_len = 8 * nc + nd + 16;
+  sum_r_q.assign(q_len, 0.f);
+  inv_r_q.assign(q_len, 0.f);
+  layoutTrackers(q_len, &rl_copy_stride, &rl_d_offset);
+  rl_trackers.assign(static_cast<size_t>(rl_d_offset) + 8 * static_cast<size_t>(rl_copy_stride),
+                     0.f);
 }
 
 void NarrowedScratch::resetSums() {
@@ -496,25 +404,87 @@ void NarrowedScratch::resetSums() {
 }
 
 void narrowedRow(const WindowLevel& c, RowScratch& s, NarrowedScratch& e, int y) {
-  const int W = c.width, r = c.r, nd = c.dmax - c.dmin + 1;
-  // The streaming trackers start empty.
-  std::fill(e.p1.begin(), e.p1.begin() + W, kNegInf);
-  std::fill(e.p2.begin(), e.p2.begin() + W, kNegInf);
-  std::fill(s.rl_best_v.begin(), s.rl_best_v.begin() + W, kNegInf);
-  std::fill(s.rl_best_d.begin(), s.rl_best_d.begin() + W, 0.f);
-  // Every pixel with an effective range takes part (its range bounds the right-to-left
-  // profiles), active or not.
-  e.pick.resize(W);
-  int np = 0;
-  for (int x = r; x < W - r; ++x) {
-    e.pick[np] = x;
-    np += s.eff_lo[x] <= s.eff_hi[x];
+  const int W = c.width, nd = c.dmax - c.dmin + 1;
+  const int nc = (W + 7) / 8;
+  // The last chunk's lanes past the row have no range.
+  for (int x = W; x < 8 * nc; ++x) {
+    s.eff_lo_f[x] = 1e9f;
+    s.eff_hi_f[x] = -1e9f;
+    s.act[x] = 0.f;
   }
-  e.pick.resize(np);
-  buildIntervals(c, s, e, e.pick);
+  if (chunkBands(s.eff_lo_f.data(), s.eff_hi_f.data(), nc, static_cast<float>(c.dmin),
+                 e.band_lo.data(), e.band_hi.data()) == 0) {
+    std::fill(s.rl_best_d.begin(), s.rl_best_d.begin() + W, 0.f);
+    return;
+  }
+  intervalsOfRow(c, e, nc);
   for (int k = 0; k < nd; ++k) {
-    narrowedSlices(c, s, e, k, y, e.ivs.data() + e.iv_start[k], e.iv_start[k + 1] - e.iv_start[k]);
+    if (e.iv_count[k] > 0) {
+      ensureV(c, e, k, y, e.iv_by_k.data() + static_cast<size_t>(k) * e.iv_cap, e.iv_count[k]);
+    }
   }
+  // The span of right-pixel indices the chunks touch (chunk j, band [k0, k1]: 8 j + nd + 7 - k1
+  // .. 8 j + nd + 14 - k0), whole vectors.
+  int i0 = e.q_len, i1 = 0;
+  for (int j = 0; j < nc; ++j) {
+    if (e.band_lo[j] > e.band_hi[j]) continue;
+    i0 = std::min(i0, 8 * j + nd + 7 - e.band_hi[j]);
+    i1 = std::max(i1, 8 * j + nd + 15 - e.band_lo[j]);
+  }
+  i1 = std::min(e.q_len, i0 + (i1 - i0 + 7) / 8 * 8);
+  const int n_idx = i1 - i0;
+  // Right statistics of right pixel q at index q + q_off (zero where there is none).
+  const int q_off = c.dmin + nd + 7;
+  {
+    const int a = std::min(std::max(i0, q_off), i1), b = std::max(std::min(i1, W + q_off), a);
+    std::fill(e.sum_r_q.begin() + i0, e.sum_r_q.begin() + a, 0.f);
+    std::fill(e.inv_r_q.begin() + i0, e.inv_r_q.begin() + a, 0.f);
+    std::memcpy(e.sum_r_q.data() + a, s.maps.sum_r.data() + (a - q_off), sizeof(float) * (b - a));
+    std::memcpy(e.inv_r_q.data() + a, s.maps.inv_r.data() + (a - q_off), sizeof(float) * (b - a));
+    std::fill(e.sum_r_q.begin() + b, e.sum_r_q.begin() + i1, 0.f);
+    std::fill(e.inv_r_q.begin() + b, e.inv_r_q.begin() + i1, 0.f);
+  }
+  float* const rl_v = e.rl_trackers.data();
+  float* const rl_d = rl_v + e.rl_d_offset;
+  clearTrackers(rl_v + i0, rl_d + i0, e.rl_copy_stride, n_idx);
+  ChunkArgs g;
+  g.w = c.w;
+  g.r = c.r;
+  g.dmin = c.dmin;
+  g.nd = nd;
+  g.num_chunks = nc;
+  g.band_lo = e.band_lo.data();
+  g.band_hi = e.band_hi.data();
+  g.v = e.v.data() + e.v_pad;
+  g.v_stride = e.v_stride;
+  g.eff_lo_f = s.eff_lo_f.data();
+  g.eff_hi_f = s.eff_hi_f.data();
+  g.act = s.act.data();
+  g.mean_l = s.maps.mean_l.data();
+  g.inv_l = s.maps.inv_l.data();
+  g.sum_r_q = e.sum_r_q.data();
+  g.inv_r_q = e.inv_r_q.data();
+  g.rl_v = rl_v;
+  g.rl_d = rl_d;
+  g.rl_copy_stride = e.rl_copy_stride;
+  g.best = s.best.data();
+  g.best_d = s.best_d.data();
+  g.best_l = s.best_l.data();
+  g.best_r = s.best_r.data();
+  g.second = s.second.data();
+  if (c.w == 9) {
+    chunkSearchWidth9(g);
+  } else if (c.w == 7) {
+    chunkSearchWidth7(g);
+  } else {
+    chunkSearch(g);
+  }
+  mergeTrackerCopies(rl_v + i0, rl_d + i0, e.rl_copy_stride, n_idx, kCopies);
+  // Right pixels outside the span received no offer: disparity 0, as an empty tracker holds.
+  const int a = std::min(std::max(0, i0 - q_off), W), b = std::max(std::min(W, i1 - q_off), a);
+  std::fill(s.rl_best_d.begin(), s.rl_best_d.begin() + a, 0.f);
+  std::memcpy(s.rl_best_d.data() + a, rl_d + a + q_off, sizeof(float) * (b - a));
+  std::fill(s.rl_best_d.begin() + b, s.rl_best_d.begin() + W, 0.f);
 }
 
 }  // namespace detail

@@ -1,8 +1,10 @@
 // Private to the core: the search engine for rows matched densely with per-pixel search ranges
-// (temporal priors narrow each pixel's range). Disparities are streamed in increasing order over
-// the column intervals whose pixels search them; for each d the vertical window sums are updated
-// by one row, summed horizontally, turned into the NCC slice S(., d) and fed to a per-pixel
-// streaming peak tracker and to the right-to-left tracker of every right pixel x - d.
+// (temporal priors narrow each pixel's range). The row is cut into chunks of 8 columns (one
+// vector); each chunk searches the union of its pixels' ranges (its band: priors are smooth, so
+// the band is little wider than each range), disparity by disparity in increasing order, with
+// the streaming peak trackers of its 8 pixels held in registers. The vertical window sums of a
+// disparity are kept, for the columns of the chunks whose band holds it, from row to row (one
+// row in, one out); each right pixel x - d receives S(x, d) in a right-to-left tracker.
 #pragma once
 
 #include <vector>
@@ -21,18 +23,28 @@ struct VValidity {
 
 /// Scratch of the narrowed-range engine, one per worker.
 struct NarrowedScratch {
-  std::vector<float> v;                           // vertical window sums, num_d rows of width
-  std::vector<VValidity> valid;                   // per disparity
-  std::vector<float> box_tmp_a, box_tmp_b, hsum;  // boxSumRow's passes and its result
-  std::vector<int> cover;     // per block, per disparity: pixels whose range holds it
-  std::vector<int> iv_start;  // per disparity: first index into ivs
-  std::vector<Interval> ivs;  // the intervals of all disparities, grouped by disparity
-  std::vector<Interval> pieces, merged, need;
-  std::vector<int> block_a, block_b, blocks, pick;
-  std::vector<int> block_k0, block_k1, iv_count;  // per block: disparity indices covered
-  std::vector<Interval> iv_by_k;                  // per disparity index: up to one per block
-  // The streaming peak tracker's last two values S(d - 1), S(d - 2) per pixel.
-  std::vector<float> p1, p2;
+  // Vertical window sums: num_d rows of v_stride floats, column x at v_pad + x (the padding lets
+  // a chunk's box sums read past the row's ends; those lanes are outside every range).
+  std::vector<float> v;
+  int v_stride = 0, v_pad = 0;
+  std::vector<VValidity> valid;  // per disparity
+  // Per chunk of 8 columns: the band (disparity indices, empty: lo > hi).
+  std::vector<int> band_lo, band_hi;
+  std::vector<int> run_from;         // per disparity index: first chunk of the open run
+  std::vector<int> iv_count;         // per disparity index: intervals in iv_by_k
+  std::vector<Interval> iv_by_k;     // per disparity index: its column intervals (iv_cap each)
+  int iv_cap = 0;
+  std::vector<Interval> pieces, merged;
+  // Right statistics and right-to-left trackers of right column q = x - d at index
+  // x - k + num_d + 7 (k = d - dmin: q + dmin + num_d + 7), inside the buffer for every lane x of
+  // every chunk (0 <= x < W + 8) and every k; q_len entries.
+  int q_len = 0;
+  std::vector<float> sum_r_q, inv_r_q;
+  // The right-to-left trackers: copies (one per disparity index mod 4, search_narrowed.cpp) of
+  // the best values, then of their disparities, laid out as the full-range engine's 8
+  // (layoutTrackers, search_full_range.hpp).
+  std::vector<float> rl_trackers;
+  int rl_copy_stride = 0, rl_d_offset = 0;
 
   void ensure(int w, int nd);
   /// Forget all window sums (new stripe or new window size).

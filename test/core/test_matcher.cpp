@@ -412,6 +412,53 @@ TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPerPixelRanges) {
   }
 }
 
+// Ranges like the temporal priors': +-4 px around a smooth estimate (the truth plus an offset
+// that drifts slowly across the image, so chunks of 8 columns hold slightly different ranges),
+// a few pixels with the full range, a few with none. The rows are dense (narrowed engine) at the
+// first window; the image width is no multiple of 8 and the range reaches below zero, so the
+// chunks at both ends of a row and negative disparities are covered. Every first-window width
+// with its own code path (the unrolled 7 and 9, the general loop) against the reference.
+TEST_F(MatcherTest, MatchesTheReferenceImplementationWithPriorLikeRanges) {
+  SyntheticSceneParams sp;
+  sp.width = 203;
+  sp.height = 72;
+  sp.base_disparity_px = 9;
+  sp.slope_x = 0.04;
+  sp.noise_stdev = 4.0;
+  sp.texture_stdev = 12.0;
+  sp.occluder = cv::Rect(80, 15, 40, 40);
+  sp.occluder_disparity_px = 20;
+  const SyntheticScene s = makeSyntheticScene(sp);
+  const int dmin = -4, dmax = 27;
+  SearchRange rg;
+  rg.lo.create(s.left.size(), CV_16SC1);
+  rg.hi.create(s.left.size(), CV_16SC1);
+  cv::RNG rng(7);
+  for (int y = 0; y < s.left.rows; ++y) {
+    for (int x = 0; x < s.left.cols; ++x) {
+      const double drift = 2.0 * std::sin(x / 23.0) + 1.5 * std::cos(y / 17.0);
+      const int g = static_cast<int>(std::lround(s.disparity.at<float>(y, x) + drift));
+      const int u = rng.uniform(0, 40);
+      const bool full = u == 0, none = u == 1;
+      rg.lo.at<int16_t>(y, x) = static_cast<int16_t>(full ? dmin : none ? g : g - 4);
+      rg.hi.at<int16_t>(y, x) = static_cast<int16_t>(full ? dmax : none ? g - 1 : g + 4);
+    }
+  }
+  MatcherParams p = range(dmin, dmax);
+  p.window_step_px = 6;
+  p.window_max_px = 21;
+  p.gamma_min = 3.0;
+  p.delta_min = 0.15;
+  p.min_ncc = 0.3;
+  p.epsilon_px = 1.0;
+  p.edge_disparity_jump_px = 0.0;
+  for (const int w : {9, 7, 5}) {
+    p.window_min_px = w;
+    expectSameAsReference(s, p, &rg, 1);
+    expectSameAsReference(s, p, &rg, 2);
+  }
+}
+
 TEST_F(MatcherTest, SameOutputForOneAndTwoThreads) {
   SyntheticSceneParams sp;
   sp.width = 256;
