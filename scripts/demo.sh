@@ -11,7 +11,11 @@
 #   5. when ../shared/data/real is present, runs real in-vivo footage (the 150 frames of
 #      real/hamlyn_invivo1, search 0..127) through endo_stereo_evaluate: our disparity and coverage
 #      beside OpenCV BM and SGBM (out/demo/invivo/comparison.png, disparity_*.png, coverage_*.png,
-#      the table in figures.md); without the data it says so and skips this step.
+#      the table in figures.md); without the data it says so and skips this step,
+#   6. with that data and rviz, plays the first 30 of those frames through a pass_through nodelet
+#      (an assumed focal length and baseline: the frames come uncalibrated) and renders its RGB-D
+#      output in rviz: the DepthCloud of depth/image_rect coloured by rgb/image_rect_color
+#      (out/demo/rviz_invivo_depthcloud.png; the depth picture in out/demo/invivo_rgbd/).
 # Outputs: out/demo/ (printed at the end).
 #
 # Environment: DEMO_FRAMES (default 30), DEMO_WIDTH x DEMO_HEIGHT (default 960 x 540, the paper's
@@ -84,6 +88,29 @@ start_nodelet() {  # $1 = log name
   return 1
 }
 
+XVFB_DISP=""
+rviz_shot() {  # $1 = rviz config, $2 = namespace, $3 = PNG, $4 = log name; Xvfb on first use
+  if [ -z "$XVFB_DISP" ]; then
+    XVFB_DISP=":$(( 90 + RANDOM % 100 ))"
+    Xvfb "$XVFB_DISP" -screen 0 1280x800x24 > "$OUT/log/xvfb.log" 2>&1 &
+    PIDS+=($!)
+    sleep 2
+  fi
+  DISPLAY="$XVFB_DISP" LIBGL_ALWAYS_SOFTWARE=1 ROS_NAMESPACE="$2" \
+    rviz -d "$1" > "$OUT/log/$4.log" 2>&1 &
+  local rviz_pid=$!
+  PIDS+=($rviz_pid)
+  sleep "${DEMO_RVIZ_WAIT_S:-20}"
+  local rc=1
+  if kill -0 "$rviz_pid" 2>/dev/null && \
+     DISPLAY="$XVFB_DISP" import -window root "$3" 2>> "$OUT/log/$4.log"; then
+    rc=0
+  fi
+  kill "$rviz_pid" 2>/dev/null
+  wait "$rviz_pid" 2>/dev/null
+  return $rc
+}
+
 # --- 2. Every frame through the nodelet ------------------------------------------------------
 start_nodelet nodelet_paced || exit 1
 step "nodelet up; playing the pairs one at a time (every frame processed)"
@@ -105,24 +132,13 @@ if [ "$HOLD" -gt 0 ]; then
   done
   if [ -e "$OUT/.view_ready" ]; then
     step "rendering the cloud in rviz (Xvfb, software GL)"
-    DISP=":$(( 90 + RANDOM % 100 ))"
-    Xvfb "$DISP" -screen 0 1280x800x24 > "$OUT/log/xvfb.log" 2>&1 &
-    PIDS+=($!)
-    sleep 2
     # The demo's view: the same displays as rviz/endo_stereo.rviz, in the /demo_view namespace
     # where the capture holds the last outputs.
-    DISPLAY="$DISP" LIBGL_ALWAYS_SOFTWARE=1 ROS_NAMESPACE=/demo_view \
-      rviz -d "$ES_ROOT/rviz/endo_stereo.rviz" > "$OUT/log/rviz.log" 2>&1 &
-    RVIZ_PID=$!
-    PIDS+=($RVIZ_PID)
-    sleep "${DEMO_RVIZ_WAIT_S:-20}"
-    if kill -0 "$RVIZ_PID" 2>/dev/null && \
-       DISPLAY="$DISP" import -window root "$OUT/rviz.png" 2>> "$OUT/log/rviz.log"; then
+    if rviz_shot "$ES_ROOT/rviz/endo_stereo.rviz" /demo_view "$OUT/rviz.png" rviz; then
       step "rviz screenshot written"
     else
       echo "[demo] rviz screenshot failed (see $OUT/log/rviz.log); cloud.png is the software render"
     fi
-    kill "$RVIZ_PID" 2>/dev/null
     touch "$OUT/.view_done"
   fi
 fi
@@ -209,6 +225,50 @@ if [ -e "$REAL/left/0001.png" ]; then
   else
     echo "[demo] ERROR: endo_stereo_evaluate failed on the in-vivo frames, see $OUT/log/invivo.err" >&2
   fi
+  # --- 6. The RGB-D output on the real frames, as rviz's DepthCloud shows it ---------------------
+  if [ "${DEMO_RVIZ:-1}" = 1 ] && command -v rviz > /dev/null && command -v Xvfb > /dev/null; then
+    INV_NS=/invivo
+    INV_OUT="$OUT/invivo_rgbd"
+    mkdir -p "$INV_OUT"
+    roslaunch "$ES_ROOT/launch/endo_stereo.launch" namespace:="${INV_NS#/}" \
+      rectify_mode:=pass_through min_disparity:=0 max_disparity:=127 \
+      > "$OUT/log/nodelet_invivo.log" 2>&1 &
+    INV_NODELET_PID=$!
+    PIDS+=($INV_NODELET_PID)
+    step "in-vivo RGB-D: 30 frames through a pass_through nodelet (assumed f 400 px, baseline 5 mm)"
+    /usr/bin/python3 "$ES_ROOT/scripts/demo_capture.py" invivo --frames-dir "$REAL" \
+      --ns "$INV_NS" --out "$INV_OUT" --count 30 --focal-px 400 --baseline-m 0.005 \
+      --hold-s 90 2> "$OUT/log/invivo_rgbd.err" &
+    INV_PID=$!
+    PIDS+=($INV_PID)
+    for _ in $(seq 3000); do
+      [ -e "$INV_OUT/.view_ready" ] && break
+      kill -0 "$INV_PID" 2>/dev/null || break
+      sleep 0.2
+    done
+    if [ -e "$INV_OUT/.view_ready" ] && /usr/bin/python3 "$ES_ROOT/scripts/demo_depthcloud_view.py" \
+         "$ES_ROOT/rviz/endo_stereo.rviz" "$INV_OUT/invivo_rgbd.json" "$INV_OUT/depthcloud.rviz" \
+         2>> "$OUT/log/invivo_rgbd.err"; then
+      step "rendering the in-vivo DepthCloud in rviz (Xvfb, software GL)"
+      if rviz_shot "$INV_OUT/depthcloud.rviz" /demo_invivo_view \
+           "$OUT/rviz_invivo_depthcloud.png" rviz_invivo; then
+        step "rviz DepthCloud screenshot written"
+      else
+        echo "[demo] rviz DepthCloud screenshot failed (see $OUT/log/rviz_invivo.log)"
+      fi
+    else
+      echo "[demo] ERROR: no RGB-D output on the in-vivo frames, see $OUT/log/invivo_rgbd.err" >&2
+    fi
+    touch "$INV_OUT/.view_done"
+    wait "$INV_PID"
+    rm -f "$INV_OUT/.view_ready" "$INV_OUT/.view_done"
+    kill "$INV_NODELET_PID" 2>/dev/null
+    wait "$INV_NODELET_PID" 2>/dev/null
+    if [ -s "$INV_OUT/figures.md" ]; then
+      { echo; cat "$INV_OUT/figures.md"; } >> "$OUT/figures.md"
+      cat "$INV_OUT/figures.md"
+    fi
+  fi
 else
   echo "[demo] NOTE: the real in-vivo frames are absent ($REAL): the demo shows generated frames only."
   echo "[demo]       Put the evaluation data beside the repository as ../shared/data to see real footage."
@@ -219,7 +279,8 @@ echo
 echo "[demo] outputs in $OUT:"
 for f in disparity_color.png coverage.png cloud.png rviz.png left_rect.png cloud.ply figures.md \
          paced.json realtime.json synthetic.bag invivo/comparison.png \
-         invivo/disparity_ours.png invivo/coverage_ours.png; do
+         invivo/disparity_ours.png invivo/coverage_ours.png rviz_invivo_depthcloud.png \
+         invivo_rgbd/depth.png; do
   [ -e "$OUT/$f" ] && printf '  %-20s %s\n' "$f" "$(du -h "$OUT/$f" | cut -f1)"
 done
 echo "[demo] replay it in rviz: roslaunch $ES_ROOT/launch/playback.launch bag:=$OUT/synthetic.bag rviz:=true min_disparity:=$DMIN max_disparity:=$DMAX"

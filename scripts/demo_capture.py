@@ -10,6 +10,15 @@ Subcommands:
       Writes DIR/disparity_color.png, left_rect.png, coverage.png, cloud.ply, cloud.png,
       paced.json. Then republishes the last outputs, latched, under /demo_view/ for S seconds
       (for an rviz screenshot) and writes DIR/.view_ready.
+  invivo --frames-dir D --ns NS --out DIR [--count N] [--focal-px F] [--baseline-m B] [--hold-s S]
+      Plays the first N rectified pairs of D (left/0001.png, right/0001.png, ...) through a
+      pass_through nodelet one at a time, with a camera_info of an assumed focal length and
+      baseline (the frames come without calibration), and keeps the RGB-D outputs of the last:
+      DIR/depth.png (the depth picture), DIR/invivo_rgbd.json (depth figures, camera_info) and
+      DIR/figures.md (the same as a table). Then
+      republishes them, latched, under /demo_invivo_view/ (depth/image_rect, depth/camera_info,
+      rgb/image_rect_color, rgb/camera_info, disparity_color, left/image_rect_color) for S
+      seconds (for an rviz screenshot of the DepthCloud) and writes DIR/.view_ready.
   listen --ns NS [--ns NS2 ...] --frames N --out FILE.json --done-file F [--timeout-s T]
       Records, per namespace, when each input left image and each disparity arrived (wall
       clock), while something else (rosbag play) publishes. Stops when F exists and the outputs
@@ -293,6 +302,159 @@ def paced(args):
 
 
 # --------------------------------------------------------------------------------------------
+# invivo
+# --------------------------------------------------------------------------------------------
+
+def array_to_image(a, encoding, stamp, frame_id):
+    msg = Image()
+    msg.header.stamp = stamp
+    msg.header.frame_id = frame_id
+    msg.height, msg.width = a.shape[0], a.shape[1]
+    msg.encoding = encoding
+    msg.is_bigendian = 0
+    msg.step = a.shape[1] * (a.shape[2] if a.ndim == 3 else 1) * a.dtype.itemsize
+    msg.data = np.ascontiguousarray(a).tobytes()
+    return msg
+
+
+def read_png_bgr(path):
+    a = plt.imread(path)  # PNG: float in [0, 1], RGB or RGBA
+    a = (np.clip(a[:, :, :3], 0, 1) * 255 + 0.5).astype(np.uint8)
+    return np.ascontiguousarray(a[:, :, ::-1])
+
+
+def invivo(args):
+    rospy.init_node("endo_stereo_demo_invivo", anonymous=True, disable_signals=True)
+    ns = args.ns.rstrip("/")
+    pairs = []
+    for i in range(1, args.count + 1):
+        lp = os.path.join(args.frames_dir, "left", "%04d.png" % i)
+        rp = os.path.join(args.frames_dir, "right", "%04d.png" % i)
+        if not (os.path.exists(lp) and os.path.exists(rp)):
+            break
+        pairs.append((read_png_bgr(lp), read_png_bgr(rp)))
+    if not pairs:
+        sys.exit("no pairs in %s" % args.frames_dir)
+    h, w = pairs[0][0].shape[:2]
+    frame = "invivo_left_optical"
+    # The frames are rectified but come without calibration: an assumed pinhole camera (the
+    # principal point at the centre) and baseline give depth of the right shape, not of the
+    # right scale.
+    infos = []
+    for side, tx in (("left", 0.0), ("right", -args.focal_px * args.baseline_m)):
+        ci = CameraInfo()
+        ci.header.frame_id = "invivo_%s_optical" % side
+        ci.width, ci.height = w, h
+        cx, cy = (w - 1) / 2.0, (h - 1) / 2.0
+        ci.distortion_model = "plumb_bob"
+        ci.D = [0.0] * 5
+        ci.K = [args.focal_px, 0, cx, 0, args.focal_px, cy, 0, 0, 1]
+        ci.R = [1, 0, 0, 0, 1, 0, 0, 0, 1]
+        ci.P = [args.focal_px, 0, cx, tx, 0, args.focal_px, cy, 0, 0, 0, 1, 0]
+        infos.append(ci)
+
+    lock = threading.Condition()
+    last = {}
+
+    def keep(name):
+        def cb(msg):
+            with lock:
+                last.setdefault(name, {})[msg.header.stamp] = msg
+                lock.notify_all()
+        return cb
+
+    names = {"depth": ("depth/image_rect", Image), "depth_info": ("depth/camera_info", CameraInfo),
+             "rgb": ("rgb/image_rect_color", Image), "rgb_info": ("rgb/camera_info", CameraInfo),
+             "disparity_color": ("disparity_color", Image)}
+    subs = [rospy.Subscriber(ns + "/" + topic, kind, keep(name), queue_size=5, buff_size=2 ** 24)
+            for name, (topic, kind) in names.items()]
+    pub_l = rospy.Publisher(ns + "/left/image_rect", Image, queue_size=2)
+    pub_r = rospy.Publisher(ns + "/right/image_rect", Image, queue_size=2)
+    pub_li = rospy.Publisher(ns + "/left/camera_info", CameraInfo, queue_size=1, latch=True)
+    pub_ri = rospy.Publisher(ns + "/right/camera_info", CameraInfo, queue_size=1, latch=True)
+    deadline = time.time() + 60
+    while time.time() < deadline and (pub_l.get_num_connections() == 0 or
+                                      pub_r.get_num_connections() == 0 or
+                                      pub_li.get_num_connections() == 0):
+        time.sleep(0.05)
+    pub_li.publish(infos[0])
+    pub_ri.publish(infos[1])
+    time.sleep(0.3)  # the latched camera_info reaches the nodelet before the first pair
+
+    t0 = rospy.Time(1700000000, 0)
+    done = None
+    for i, (l, r) in enumerate(pairs):
+        stamp = t0 + rospy.Duration(0.04 * i)
+        pub_l.publish(array_to_image(l, "bgr8", stamp, frame))
+        pub_r.publish(array_to_image(r, "bgr8", stamp, infos[1].header.frame_id))
+        with lock:
+            ok = lock.wait_for(lambda: all(stamp in last.get(n, {}) for n in names),
+                               timeout=args.frame_timeout_s)
+        if ok:
+            done = stamp
+        sys.stdout.write("\r[demo] in-vivo frame %d/%d %s" % (
+            i + 1, len(pairs), "ok" if ok else "no RGB-D output (timeout)"))
+        sys.stdout.flush()
+    print()
+    for s_ in subs:
+        s_.unregister()
+    if done is None:
+        sys.exit("no complete RGB-D output from %s" % ns)
+    with lock:
+        snap = {n: last[n][done] for n in names}
+    depth = image_to_array(snap["depth"])
+    ok = np.isfinite(depth)
+    figures = {"frames": len(pairs), "width": w, "height": h,
+               "assumed_focal_px": args.focal_px, "assumed_baseline_m": args.baseline_m,
+               "depth_valid_share": float(ok.mean()),
+               "depth_median_m": float(np.median(depth[ok])) if ok.any() else None,
+               "depth_p5_m": float(np.percentile(depth[ok], 5)) if ok.any() else None,
+               "depth_p95_m": float(np.percentile(depth[ok], 95)) if ok.any() else None,
+               "depth_camera_info_K": list(snap["depth_info"].K),
+               "depth_frame": snap["depth"].header.frame_id}
+    os.makedirs(args.out, exist_ok=True)
+    with open(os.path.join(args.out, "invivo_rgbd.json"), "w") as f:
+        json.dump(figures, f, indent=2)
+    lines = ["## RGB-D output on the real in-vivo frames (rviz DepthCloud: rviz_invivo_depthcloud.png)",
+             "| figure | value |", "|---|---|",
+             "| frames played (pass_through, one at a time) | %d of %dx%d |" % (len(pairs), w, h),
+             "| assumed camera (the frames come without calibration) | f %.0f px, baseline %.1f mm |"
+             % (args.focal_px, 1e3 * args.baseline_m)]
+    if ok.any():
+        lines.append("| depth/image_rect of the last frame: valid share, median (5-95%%) | "
+                     "%.3f, %.1f mm (%.1f-%.1f) |"
+                     % (figures["depth_valid_share"], 1e3 * figures["depth_median_m"],
+                        1e3 * figures["depth_p5_m"], 1e3 * figures["depth_p95_m"]))
+    with open(os.path.join(args.out, "figures.md"), "w") as f:
+        f.write("\n".join(lines) + "\n")
+    if ok.any():
+        lo, hi = figures["depth_p5_m"], figures["depth_p95_m"]
+        plt.imsave(os.path.join(args.out, "depth.png"),
+                   colourise(np.where(ok, depth, lo), lo, hi, invalid=~ok))
+
+    if args.hold_s > 0:
+        view = {"depth": ("depth/image_rect", Image), "depth_info": ("depth/camera_info", CameraInfo),
+                "rgb": ("rgb/image_rect_color", Image), "rgb_info": ("rgb/camera_info", CameraInfo),
+                "disparity_color": ("disparity_color", Image),
+                "left_rect": ("left/image_rect_color", Image)}
+        pubs = {n: rospy.Publisher("/demo_invivo_view/" + topic, kind, queue_size=1, latch=True)
+                for n, (topic, kind) in view.items()}
+        snap["left_rect"] = snap["rgb"]
+        for n, p in pubs.items():
+            p.publish(snap[n])
+        open(os.path.join(args.out, ".view_ready"), "w").close()
+        end = time.time() + args.hold_s
+        while time.time() < end and not os.path.exists(os.path.join(args.out, ".view_done")):
+            # rviz shows a message when it arrives: publish again now and then, camera_info first
+            # (the DepthCloud needs one before a depth image).
+            for n in ("depth_info", "rgb_info", "depth", "rgb", "disparity_color", "left_rect"):
+                if pubs[n].get_num_connections() > 0:
+                    pubs[n].publish(snap[n])
+            time.sleep(1.0)
+    rospy.signal_shutdown("done")
+
+
+# --------------------------------------------------------------------------------------------
 # listen
 # --------------------------------------------------------------------------------------------
 
@@ -383,6 +545,15 @@ def main():
     p.add_argument("--hold-s", type=float, default=0.0)
     p.add_argument("--frame-timeout-s", type=float, default=60.0)
     p.add_argument("--within-frames", type=int, default=10)
+    v = sub.add_parser("invivo")
+    v.add_argument("--frames-dir", required=True)
+    v.add_argument("--ns", default="/invivo")
+    v.add_argument("--out", required=True)
+    v.add_argument("--count", type=int, default=30)
+    v.add_argument("--focal-px", type=float, default=400.0)
+    v.add_argument("--baseline-m", type=float, default=0.005)
+    v.add_argument("--hold-s", type=float, default=0.0)
+    v.add_argument("--frame-timeout-s", type=float, default=60.0)
     l = sub.add_parser("listen")
     l.add_argument("--ns", action="append", required=True)
     l.add_argument("--nodelet", action="append", default=[],
@@ -393,7 +564,7 @@ def main():
     l.add_argument("--ready-file", default="")
     l.add_argument("--timeout-s", type=float, default=300.0)
     args = ap.parse_args(rospy.myargv()[1:])
-    paced(args) if args.cmd == "paced" else listen(args)
+    {"paced": paced, "invivo": invivo, "listen": listen}[args.cmd](args)
 
 
 if __name__ == "__main__":

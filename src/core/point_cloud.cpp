@@ -67,6 +67,28 @@ void disparityToCloud(const cv::Mat& disparity, const cv::Mat& left_rect_bgr,
   }
 }
 
+void disparityToDepth(const cv::Mat& disparity, const RectifiedGeometry& g, cv::Mat& depth) {
+  if (disparity.type() != CV_32FC1) {
+    throw std::invalid_argument("disparityToDepth: disparity must be CV_32FC1");
+  }
+  const float nan = std::numeric_limits<float>::quiet_NaN();
+  depth.create(disparity.size(), CV_32FC1);
+  if (g.polar || !(g.f_px > 0.0) || !(g.fyOrF() > 0.0) || !(g.baseline_m > 0.0)) {
+    depth.setTo(cv::Scalar(nan));
+    return;
+  }
+  // The same arithmetic as disparityToCloud's z, so both outputs agree to the bit.
+  const double fb = g.f_px * g.baseline_m, doffs = g.doffs();
+  for (int v = 0; v < disparity.rows; ++v) {
+    const float* d = disparity.ptr<float>(v);
+    float* z = depth.ptr<float>(v);
+    for (int u = 0; u < disparity.cols; ++u) {
+      const double denom = double(d[u]) - doffs;
+      z[u] = std::isfinite(d[u]) && denom > 0.0 ? float(fb / denom) : nan;
+    }
+  }
+}
+
 bool writePly(const std::string& path, const OrganizedCloud& cloud, bool binary,
               std::string* error) {
   auto fail = [&](const std::string& m) {

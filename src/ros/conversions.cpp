@@ -83,6 +83,20 @@ sensor_msgs::CameraInfo toCameraInfo(const CameraCalibration& c) {
   return info;
 }
 
+sensor_msgs::CameraInfo rectifiedCameraInfo(const RectifiedGeometry& g, int width, int height,
+                                            const std_msgs::Header& header) {
+  sensor_msgs::CameraInfo info;
+  info.header = header;
+  info.width = static_cast<uint32_t>(std::max(0, width));
+  info.height = static_cast<uint32_t>(std::max(0, height));
+  info.distortion_model = "plumb_bob";
+  info.D.assign(5, 0.0);
+  info.K = {g.f_px, 0.0, g.cx_left, 0.0, g.fyOrF(), g.cy, 0.0, 0.0, 1.0};
+  info.R = {1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0};
+  info.P = {g.f_px, 0.0, g.cx_left, 0.0, 0.0, g.fyOrF(), g.cy, 0.0, 0.0, 0.0, 1.0, 0.0};
+  return info;
+}
+
 std::string checkCameraInfo(const sensor_msgs::CameraInfo& info, const std::string& name,
                             int image_width, int image_height) {
   if (!allFinite(info.K) || !allFinite(info.R) || !allFinite(info.P) || !allFinite(info.D)) {

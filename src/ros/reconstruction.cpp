@@ -175,6 +175,17 @@ void Reconstruction::advertiseOutputs() {
   if (allowed("disparity_color")) pub_disparity_color_ = it_.advertise("disparity_color", 1, icb, icb);
   if (allowed("confidence")) pub_confidence_ = it_.advertise("confidence", 1, icb, icb);
   if (allowed("coverage")) pub_coverage_ = it_.advertise("coverage", 1, icb, icb);
+  // The RGB-D outputs: image and camera_info advertised together (image_transport's camera
+  // publisher: <ns>/image_rect and <ns>/camera_info), both names checked against the inputs.
+  auto camera = [&](const std::string& ns, const std::string& image,
+                    image_transport::CameraPublisher& pub) {
+    const bool image_ok = allowed(ns + "/" + image);
+    const bool info_ok = allowed(ns + "/camera_info");
+    if (image_ok && info_ok) pub = it_.advertiseCamera(ns + "/" + image, 1, icb, icb, cb, cb);
+  };
+  camera("depth", "image_rect", pub_depth_);
+  camera("rgb", "image_rect_color", pub_rgb_);
+  camera("depth_fused", "image_rect", pub_depth_fused_);
   if (mode_ == RectifyMode::kPassThrough) {
     // The input is the rectified pair: a rectified-image output would repeat it, under the very
     // name of the right input (right/image_rect).
@@ -258,7 +269,8 @@ void Reconstruction::connectCb() {
                      pub_fused_.getNumSubscribers() + pub_confidence_.getNumSubscribers() +
                      pub_disparity_color_.getNumSubscribers() +
                      pub_coverage_.getNumSubscribers() + pub_left_rect_.getNumSubscribers() +
-                     pub_right_rect_.getNumSubscribers();
+                     pub_right_rect_.getNumSubscribers() + pub_depth_.getNumSubscribers() +
+                     pub_rgb_.getNumSubscribers() + pub_depth_fused_.getNumSubscribers();
   if (n == 0 && subscribed_) {
     unsubscribeInputs();
   } else if (n > 0 && !subscribed_) {
@@ -551,7 +563,8 @@ void Reconstruction::processPair(const Pair& pair) {
   }
   // Fused and coverage outputs are computed while configured or while someone listens; the
   // cloud (8 MB at 960x540) only while configured and someone listens to points2, and the left
-  // colour image (conversion + 3-channel remap) only for the cloud or left/image_rect_color.
+  // colour image (conversion + 3-channel remap) only for the cloud, left/image_rect_color or
+  // rgb/image_rect_color.
   {
     OutputParams configured;
     {
@@ -559,7 +572,8 @@ void Reconstruction::processPair(const Pair& pair) {
       configured = params_.output;
     }
     PipelineParams p = pipeline_->params();
-    const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0;
+    const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0 ||
+                            pub_depth_fused_.getNumSubscribers() > 0;
     const bool want_cov = configured.coverage || pub_coverage_.getNumSubscribers() > 0;
     const bool want_cloud = configured.point_cloud && pub_points_.getNumSubscribers() > 0;
     if (p.output.fused != want_fused || p.output.coverage != want_cov ||
@@ -569,7 +583,8 @@ void Reconstruction::processPair(const Pair& pair) {
       p.output.point_cloud = want_cloud;
       pipeline_->setParams(p);
     }
-    pipeline_->setColorOutput(pub_left_rect_.getNumSubscribers() > 0);
+    pipeline_->setColorOutput(pub_left_rect_.getNumSubscribers() > 0 ||
+                              pub_rgb_.getNumSubscribers() > 0);
   }
 
   const ros::Time stamp = pair.left->header.stamp;
@@ -708,6 +723,7 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
   if (pub_right_rect_.getNumSubscribers() > 0 && !out.right_rect_gray.empty()) {
     pub_right_rect_.publish(shared(ros_conv::matToImage(out.right_rect_gray, enc::MONO8, header)));
   }
+  publishRgbd(header, out, g, depth_ok);
   if (pub_points_.getNumSubscribers() == 0 || out.cloud.xyz.empty()) return;
   if (!depth_ok || !out.cloud.metric) {
     if (!warned_not_metric_) {
@@ -737,6 +753,40 @@ void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out)
     }
   }
   pub_points_.publish(cloud_msg);
+}
+
+void Reconstruction::publishRgbd(const std_msgs::Header& header, const PipelineOutput& out,
+                                 const RectifiedGeometry& g, bool depth_ok) {
+  const bool depth = pub_depth_.getNumSubscribers() > 0;
+  const bool rgb = pub_rgb_.getNumSubscribers() > 0;
+  const bool fused = pub_depth_fused_.getNumSubscribers() > 0 && !out.fused_disparity.empty();
+  if (!depth && !rgb && !fused) return;
+  if (!depth_ok) {
+    // An RGB-D consumer takes depth in metres and a camera_info it can trust: neither exists
+    // without a metric, non-polar geometry, so the whole set is withheld (said once).
+    if (!warned_no_depth_) {
+      ROS_WARN("%s: depth/*, depth_fused/* and rgb/* are not published: the geometry is not "
+               "metric (uncalibrated input without rectify.focal_px and rectify.baseline_m, or a "
+               "polar rectification)", name_.c_str());
+      warned_no_depth_ = true;
+    }
+    return;
+  }
+  // One camera_info for the three: they share the left rectified view and the disparity's size.
+  const cv::Size size = out.match.disparity.size();
+  const auto info =
+      shared(ros_conv::rectifiedCameraInfo(g, size.width, size.height, header));
+  if (depth) {
+    disparityToDepth(out.match.disparity, g, depth_);
+    pub_depth_.publish(shared(ros_conv::matToImage(depth_, enc::TYPE_32FC1, header)), info);
+  }
+  if (rgb && out.left_rect_color.size() == size) {
+    pub_rgb_.publish(shared(ros_conv::matToImage(out.left_rect_color, enc::BGR8, header)), info);
+  }
+  if (fused && out.fused_disparity.size() == size) {
+    disparityToDepth(out.fused_disparity, g, depth_);
+    pub_depth_fused_.publish(shared(ros_conv::matToImage(depth_, enc::TYPE_32FC1, header)), info);
+  }
 }
 
 // ------------------------------------------------------------------------------------------------

@@ -100,6 +100,43 @@ TEST(PointCloud, RejectsWrongTypes) {
                std::invalid_argument);
 }
 
+// The depth image is the cloud's z, pixel for pixel and to the bit (the same arithmetic), so a
+// consumer back-projecting it gets the cloud's points; NaN exactly where the cloud has none.
+TEST(DepthImage, IsTheCloudsZWithNanWhereNoPoint) {
+  RectifiedGeometry g = vergedGeometry();
+  cv::Mat disp(g.height, g.width, CV_32FC1);
+  cv::RNG rng(11);
+  rng.fill(disp, cv::RNG::UNIFORM, g.doffs() - 5.0, g.doffs() + 60.0);  // some behind the rig
+  disp.at<float>(0, 0) = std::numeric_limits<float>::quiet_NaN();
+  disp.at<float>(1, 1) = std::numeric_limits<float>::infinity();
+  disp.at<float>(2, 2) = float(g.doffs());  // at infinity
+  OrganizedCloud cloud;
+  disparityToCloud(disp, cv::Mat(), g, cloud);
+  cv::Mat depth;
+  disparityToDepth(disp, g, depth);
+  ASSERT_EQ(depth.type(), CV_32FC1);
+  ASSERT_EQ(depth.size(), disp.size());
+  int valid = 0;
+  for (int v = 0; v < disp.rows; ++v) {
+    for (int u = 0; u < disp.cols; ++u) {
+      const float z = depth.at<float>(v, u), cz = cloud.xyz.at<cv::Vec3f>(v, u)[2];
+      ASSERT_EQ(std::isfinite(z), std::isfinite(cz)) << "pixel " << u << ", " << v;
+      if (!std::isfinite(z)) {
+        EXPECT_TRUE(std::isnan(z));
+        continue;
+      }
+      EXPECT_EQ(z, cz);
+      ++valid;
+    }
+  }
+  EXPECT_GT(valid, 20);  // most of the 48 pixels lie in front of the rig
+  EXPECT_LT(valid, 48);
+  g.polar = true;
+  disparityToDepth(disp, g, depth);
+  EXPECT_EQ(cv::countNonZero(depth == depth), 0);  // NaN != NaN: no pixel equals itself
+  EXPECT_THROW(disparityToDepth(cv::Mat(2, 2, CV_16SC1), g, depth), std::invalid_argument);
+}
+
 std::string readAll(const std::string& p) {
   std::ifstream is(p, std::ios::binary);
   std::stringstream ss;

@@ -47,6 +47,39 @@ TEST(CameraInfoConversion, ZeroRoiMeansFullImage) {
   EXPECT_TRUE(ros_conv::fromCameraInfo(info).roi.empty());
 }
 
+// The rectified left view as an RGB-D camera_info: K and P from the geometry (fy kept apart from
+// fx, the left principal point even with verged ones), R identity, zero distortion, the size
+// given, and a message checkCameraInfo accepts for an image of that size.
+TEST(CameraInfoConversion, RectifiedLeftViewForDepth) {
+  RectifiedGeometry g;
+  g.f_px = 685.5;
+  g.fy_px = 342.75;  // a single field: half the vertical focal length
+  g.cx_left = 159.5;
+  g.cx_right = 151.0;
+  g.cy = 60.25;
+  g.baseline_m = 0.0045;
+  g.metric = true;
+  std_msgs::Header h;
+  h.stamp = ros::Time(1700000000, 40000000);
+  h.frame_id = "endoscope_left_optical";
+  const sensor_msgs::CameraInfo info = ros_conv::rectifiedCameraInfo(g, 320, 120, h);
+  EXPECT_EQ(info.header.stamp, h.stamp);
+  EXPECT_EQ(info.header.frame_id, h.frame_id);
+  EXPECT_EQ(info.width, 320u);
+  EXPECT_EQ(info.height, 120u);
+  const boost::array<double, 9> K = {685.5, 0, 159.5, 0, 342.75, 60.25, 0, 0, 1};
+  const boost::array<double, 12> P = {685.5, 0, 159.5, 0, 0, 342.75, 60.25, 0, 0, 0, 1, 0};
+  const boost::array<double, 9> R = {1, 0, 0, 0, 1, 0, 0, 0, 1};
+  EXPECT_EQ(info.K, K);
+  EXPECT_EQ(info.P, P);
+  EXPECT_EQ(info.R, R);
+  EXPECT_EQ(info.distortion_model, "plumb_bob");
+  EXPECT_EQ(info.D, std::vector<double>(5, 0.0));
+  EXPECT_EQ(info.binning_x, 0u);
+  EXPECT_EQ(info.roi.width, 0u);
+  EXPECT_EQ(ros_conv::checkCameraInfo(info, "depth/camera_info", 320, 120), "");
+}
+
 TEST(CameraInfoCheck, NamesTheProblem) {
   sensor_msgs::CameraInfo good = ros_conv::toCameraInfo(sampleCalibration());
   // Binned ROI: 600x440 / 2 = 300x220.

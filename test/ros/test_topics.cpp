@@ -43,7 +43,8 @@ ros::Subscriber listen(ros::NodeHandle& nh, const std::string& topic) {
 // Every output name the nodelet may advertise (reconstruction.hpp).
 const std::vector<std::string> kOutputs = {
     "disparity", "points2", "disparity_color", "confidence", "disparity_fused", "coverage",
-    "left/image_rect_color", "right/image_rect"};
+    "left/image_rect_color", "right/image_rect", "depth/image_rect", "depth/camera_info",
+    "rgb/image_rect_color", "rgb/camera_info", "depth_fused/image_rect", "depth_fused/camera_info"};
 
 /// Subscribes to every output of @p ns (the lazy nodelet then subscribes its inputs), waits
 /// until @p manager subscribes to all of @p inputs, and checks that it publishes none of the
@@ -62,6 +63,8 @@ void checkMode(const std::string& ns, const std::string& manager,
         listeners.push_back(listen<stereo_msgs::DisparityImage>(nh, topic));
       } else if (o == "points2") {
         listeners.push_back(listen<sensor_msgs::PointCloud2>(nh, topic));
+      } else if (o.size() > 11 && o.compare(o.size() - 11, 11, "camera_info") == 0) {
+        listeners.push_back(listen<sensor_msgs::CameraInfo>(nh, topic));
       } else {
         listeners.push_back(listen<sensor_msgs::Image>(nh, topic));
       }
@@ -101,7 +104,9 @@ TEST(Topics, CalibratedSubscribesToNothingItPublishes) {
   checkMode("/cal", "/manager_cal",
             {"/cal/left/image_raw", "/cal/right/image_raw", "/cal/left/camera_info",
              "/cal/right/camera_info"},
-            {"/cal/disparity", "/cal/points2", "/cal/left/image_rect_color", "/cal/right/image_rect"},
+            {"/cal/disparity", "/cal/points2", "/cal/left/image_rect_color", "/cal/right/image_rect",
+             "/cal/depth/image_rect", "/cal/depth/camera_info", "/cal/rgb/image_rect_color",
+             "/cal/rgb/camera_info", "/cal/depth_fused/image_rect", "/cal/depth_fused/camera_info"},
             {});
 }
 
@@ -110,7 +115,8 @@ TEST(Topics, PassThroughSubscribesToNothingItPublishes) {
   checkMode("/pt", "/manager_pt",
             {"/pt/left/image_rect", "/pt/right/image_rect", "/pt/left/camera_info",
              "/pt/right/camera_info"},
-            {"/pt/disparity", "/pt/points2", "/pt/disparity_color"},
+            {"/pt/disparity", "/pt/points2", "/pt/disparity_color", "/pt/depth/image_rect",
+             "/pt/depth/camera_info", "/pt/rgb/image_rect_color", "/pt/rgb/camera_info"},
             {"/pt/left/image_rect_color"});
 }
 

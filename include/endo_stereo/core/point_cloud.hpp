@@ -1,6 +1,7 @@
 /**
  * @file point_cloud.hpp
- * @brief Organized XYZRGB cloud from a disparity map and the rectified geometry, and PLY output.
+ * @brief Organized XYZRGB cloud and depth image from a disparity map and the rectified geometry,
+ * and PLY output.
  *
  * Frame: the left rectified optical frame (ROS convention: x right, y down, z forward), metres.
  * For pixel (u, v) with disparity d (= x_left - x_right, px):
@@ -40,6 +41,21 @@ struct OrganizedCloud {
  */
 void disparityToCloud(const cv::Mat& disparity, const cv::Mat& left_rect_bgr,
                       const RectifiedGeometry& g, OrganizedCloud& out);
+
+/**
+ * The depth image of a disparity map: Z = f_px * baseline_m / (d - doffs) per pixel, computed as
+ * disparityToCloud() computes its z (double division, stored as float), so a depth image
+ * back-projected through the left rectified camera (fx = f_px, fy = fyOrF(), cx = cx_left,
+ * cy) gives the points of the cloud.
+ * @param disparity CV_32FC1, px, NaN (or any non-finite value) = invalid.
+ * @param g         geometry of the rectified pair.
+ * @param depth     CV_32FC1 of the disparity's size (reallocated on size change), metres (units of
+ *                  the baseline when not metric); NaN where the disparity is invalid or
+ *                  d <= doffs, and everywhere where disparityToCloud() gives no points (g.polar,
+ *                  f_px <= 0, baseline_m <= 0).
+ * @throws std::invalid_argument when the disparity is not CV_32FC1.
+ */
+void disparityToDepth(const cv::Mat& disparity, const RectifiedGeometry& g, cv::Mat& depth);
 
 /**
  * Write the valid points (finite xyz) as PLY with x y z (float) and red green blue (uchar) when

@@ -43,6 +43,17 @@ CameraCalibration fromCameraInfo(const sensor_msgs::CameraInfo& info);
 sensor_msgs::CameraInfo toCameraInfo(const CameraCalibration& calib);
 
 /**
+ * The camera_info of the left rectified view as a depth or colour image of @p width x @p height
+ * pixels publishes it (an RGB-D camera's depth/camera_info, REP 104): K = P's left 3x3 =
+ * [f_px 0 cx_left; 0 fyOrF() cy; 0 0 1], P(0,3) = P(1,3) = 0, R identity, plumb_bob with five
+ * zero coefficients, no binning, no ROI; header as given (the pair's stamp, the left rectified
+ * optical frame). image_geometry's PinholeCameraModel back-projects a depth image with it into
+ * the points of disparityToCloud().
+ */
+sensor_msgs::CameraInfo rectifiedCameraInfo(const RectifiedGeometry& geometry, int width,
+                                            int height, const std_msgs::Header& header);
+
+/**
  * Checks a CameraInfo for what the ROS layer can tell on its own: all numbers finite, a non-zero
  * size, fx, fy > 0 in K, a known distortion model with a matching number of coefficients (an empty
  * model with no coefficients means no distortion), and, when @p image_width / @p image_height are

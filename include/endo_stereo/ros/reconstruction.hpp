@@ -18,6 +18,14 @@
  *   (DisparityImage), `coverage` (16UC1, longest run of frames without an update), and, where the
  *   node rectifies (calibrated and uncalibrated modes), `left/image_rect_color` (bgr8) and
  *   `right/image_rect` (mono8); and /diagnostics.
+ * - Out, RGB-D (names as an RGB-D camera publishes them), where the geometry is metric and not
+ *   polar: `depth/image_rect` (32FC1, metres, Z = f T / d of `disparity`, NaN where there is no
+ *   value) with `depth/camera_info` (the left rectified view: K and P, R identity, no distortion,
+ *   the depth image's size), `rgb/image_rect_color` (bgr8, the left rectified colour image, pixel
+ *   for pixel aligned with the depth) with `rgb/camera_info` (the same), and
+ *   `depth_fused/image_rect` with `depth_fused/camera_info` (from `disparity_fused`). All in the
+ *   left rectified optical frame, stamped as the pair, at the size of `disparity` (after
+ *   downsampling).
  * - No topic is both an input and an output: pass_through mode, whose inputs are the rectified
  *   images, publishes no rectified images (they would be its own input), and an output whose
  *   resolved name equals an input's (after remapping) is not advertised, with a warning.
@@ -131,6 +139,10 @@ class Reconstruction {
   void processPair(const Pair& pair);
   bool checkPair(const Pair& pair, std::string* error);
   void publishOutputs(const Pair& pair, const PipelineOutput& out);
+  /// depth/*, rgb/*, depth_fused/* (only with subscribers; withheld with a warning when
+  /// @p depth_ok is false).
+  void publishRgbd(const std_msgs::Header& header, const PipelineOutput& out,
+                   const RectifiedGeometry& g, bool depth_ok);
   void reject(const std::string& what, const std::string& error);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
   bool needsCameraInfo() const;
@@ -165,6 +177,7 @@ class Reconstruction {
   // --- Outputs (a publisher left unadvertised publishes nothing and has no subscribers).
   ros::Publisher pub_disparity_, pub_points_, pub_fused_;
   image_transport::Publisher pub_disparity_color_, pub_confidence_, pub_coverage_, pub_left_rect_, pub_right_rect_;
+  image_transport::CameraPublisher pub_depth_, pub_rgb_, pub_depth_fused_;  // image + camera_info
   std::vector<std::string> outputs_;  // the outputs advertised (relative names), for describe()
   std::string outputs_note_;          // why some were not advertised ("" when all were)
 
@@ -202,6 +215,8 @@ class Reconstruction {
   bool has_calibration_ = false;
   ros::Time last_stamp_;
   bool warned_not_metric_ = false;
+  bool warned_no_depth_ = false;  // the RGB-D outputs were withheld (geometry not metric)
+  cv::Mat depth_;                 // depth image buffer, reused between frames
   bool first_pair_logged_ = false;  // the first pair's timings went to the log
 
   // --- Figures (stats_mutex_).
