@@ -101,6 +101,9 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   // core at 960x540) is a diagnostic: measured beside the processing at the lowest priority, not
   // inside a frame. (Uncalibrated mode still matches SIFT inline while it pools an estimate.)
   pipeline_->setAsyncRectificationQuality(true);
+  frozen_views_ = std::make_unique<FrozenViews>(ros_params_.freeze_frames, name_,
+                                                nh_.resolveName(left_topic_),
+                                                nh_.resolveName(right_topic_));
 
   if (!ros_params_.target_frame.empty()) {
     tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
@@ -383,6 +386,7 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
     left_unpaired_since_ = ros::WallTime();
     right_unpaired_since_ = ros::WallTime();
   }
+  if (withholdFrozen(pair)) return;
   int64_t dropped = 0;
   {
     std::lock_guard<std::mutex> lock(backlog_mutex_);
@@ -536,7 +540,19 @@ bool Reconstruction::checkPair(const Pair& p, std::string* error) {
   return true;
 }
 
+bool Reconstruction::withholdFrozen(const Pair& pair) {
+  const FrozenViews::Verdict v = frozen_views_->check(*pair.left, *pair.right);
+  if (v.resumed) temporal_reset_pending_ = true;
+  if (!v.withhold) return false;
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.pairs_received;
+  ++counters_.pairs_frozen;
+  return true;
+}
+
 void Reconstruction::processPair(const Pair& pair) {
+  // A frozen view came back: what was matched before the freeze was found paired a stale view.
+  if (temporal_reset_pending_.exchange(false)) pipeline_->reset();
   // Parameters change only here, between two frames.
   {
     std::lock_guard<std::mutex> lock(params_mutex_);
@@ -824,11 +840,14 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   const std::vector<double> lat(latencies_ms_.begin(), latencies_ms_.end());
   const std::vector<double> pipe(pipeline_ms_.begin(), pipeline_ms_.end());
   const bool subscribed = subscribed_.load();
+  const std::string frozen = frozen_views_->message();
 
   if (!subscribed) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "idle: no subscribers to the outputs");
   } else if (new_rejects > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "input rejected: " + last_error_);
+  } else if (!frozen.empty()) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, frozen);
   } else if (silent) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no input: " + silence_message_);
   } else if (new_drops > 0) {
@@ -858,6 +877,9 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("pairs waiting", static_cast<int>(waiting));
   stat.add("stream restarts", c.restarts);
   stat.add("tf failures", c.tf_failures);
+  stat.add("pairs withheld (frozen view)", c.pairs_frozen);
+  stat.add("left view unchanged (pairs)", frozen_views_->unchangedRun(true));
+  stat.add("right view unchanged (pairs)", frozen_views_->unchangedRun(false));
   stat.add("latency median (ms)", percentile(lat, 0.5));
   stat.add("latency p90 (ms)", percentile(lat, 0.9));
   // The core's share of the latency (Pipeline::process); the rest is waiting in the backlog,

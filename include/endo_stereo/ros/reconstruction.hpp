@@ -37,6 +37,10 @@
  *   or skipped are counted as dropped. Nothing queues without limit.
  * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
  *   problem, counted as rejected, and the next good pair is processed.
+ * - A frozen camera (a view whose image is bit-identical to its previous one for
+ *   `~freeze_frames` consecutive pairs) stops the output: its pairs are withheld and counted, a
+ *   WARN (log, throttled, and diagnostics) names the camera, and the first pair whose view changed
+ *   again is matched after a reset of the temporal state (frozen_views.hpp).
  * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
  *   two frames.
  *
@@ -69,6 +73,7 @@
 #include <tf2_ros/transform_listener.h>
 
 #include "endo_stereo/core/pipeline.hpp"
+#include "endo_stereo/ros/frozen_views.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 
 namespace endo_stereo {
@@ -83,6 +88,7 @@ struct ReconstructionCounters {
   int64_t pairs_rejected = 0;   ///< pairs refused (bad input, pipeline error, out of order)
   int64_t restarts = 0;         ///< stream restarts (time jumped back more than restart_jump_back_s)
   int64_t tf_failures = 0;      ///< clouds not published for lack of the target_frame transform
+  int64_t pairs_frozen = 0;     ///< pairs withheld because a view was frozen (~freeze_frames)
 };
 
 class Reconstruction {
@@ -129,6 +135,8 @@ class Reconstruction {
   void infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg);
   void workerLoop();
   void processPair(const Pair& pair);
+  /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
+  bool withholdFrozen(const Pair& pair);
   bool checkPair(const Pair& pair, std::string* error);
   void publishOutputs(const Pair& pair, const PipelineOutput& out);
   void reject(const std::string& what, const std::string& error);
@@ -220,6 +228,11 @@ class Reconstruction {
   // Silence (diagnostics thread only): the last explanation and when it was made and logged.
   std::string silence_message_;
   ros::WallTime silence_explained_, silence_logged_;
+
+  // --- Frozen cameras: checked on every pair formed (callback threads); a freeze that ended asks
+  // the processing thread for a temporal reset before its next pair.
+  std::unique_ptr<FrozenViews> frozen_views_;
+  std::atomic<bool> temporal_reset_pending_{false};
 
   // --- tf2 (only with a target_frame).
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;

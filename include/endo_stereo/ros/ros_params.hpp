@@ -76,6 +76,12 @@ struct RosParams {
   /// While an output has subscribers and no image has arrived on either input for this long, a
   /// warning (log and diagnostics) names the topics listened to and the likely fix, s, in (0, 3600].
   double no_input_warn_s = 5.0;
+  /// A view whose image is bit-identical to its previous one for this many consecutive pairs is
+  /// frozen (a capture card re-sending its last frame under new stamps): its pairs are not
+  /// matched, with a warning naming the camera, until its image changes again. A live camera
+  /// never repeats an image exactly (sensor noise), even on a still scene. In [0, 1000];
+  /// 0 = off. 10 = 0.4 s at 25 fps.
+  int freeze_frames = 10;
   /// Name of the preset the parameters came from, for the start-up line only (the launch files
   /// set it to the YAML file they load; "" = none named).
   std::string preset;
