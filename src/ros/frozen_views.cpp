@@ -45,7 +45,7 @@ std::string FrozenViews::describeLocked() const {
     m << (l ? "left" : "right") << " camera frozen: " << (l ? left_topic_ : right_topic_)
       << " has sent the same image for " << (l ? left_ : right_).unchangedRun() << " pairs";
   }
-  m << "; " << withheld_in_freeze_ << " pairs withheld, no disparity until it changes";
+  m << "; no disparity until it changes (pairs withheld so far: " << withheld_in_freeze_ << ")";
   return m.str();
 }
 

@@ -540,6 +540,38 @@ bool Reconstruction::checkPair(const Pair& p, std::string* error) {
   return true;
 }
 
+std::string Reconstruction::describeCalibrationChange(const StereoCalibration& before,
+                                                      const StereoCalibration& after) {
+  std::ostringstream m;
+  m << "camera_info changed mid-stream (";
+  const cv::Size a = before.left.binnedSize(), b = after.left.binnedSize();
+  if (a != b) {
+    m << "image size " << a.width << "x" << a.height << " -> " << b.width << "x" << b.height;
+  } else {
+    m << "new calibration values, " << b.width << "x" << b.height;
+  }
+  m << ")";
+  return m.str();
+}
+
+void Reconstruction::noteTemporalReset() {
+  // A geometry change (new camera_info, or new image size) is said once, with what the pipeline
+  // did about it; time-based resets (gaps, a stream restart) are counted only.
+  const bool size_changed = out_.reset_reason.find("size changed") != std::string::npos;
+  if (!geometry_change_.empty() || size_changed) {
+    const std::string what = !geometry_change_.empty() ? geometry_change_ : "images changed size";
+    ROS_INFO("%s: %s: rectification rebuilt, temporal state reset (%s); outputs from %.6f s on "
+             "use the new geometry only",
+             name_.c_str(), what.c_str(), out_.reset_reason.c_str(), last_stamp_.toSec());
+    geometry_change_.clear();
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++counters_.geometry_changes;
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.temporal_resets;
+  last_reset_reason_ = out_.reset_reason;
+}
+
 bool Reconstruction::withholdFrozen(const Pair& pair) {
   const FrozenViews::Verdict v = frozen_views_->check(*pair.left, *pair.right);
   if (v.resumed) temporal_reset_pending_ = true;
@@ -620,6 +652,7 @@ void Reconstruction::processPair(const Pair& pair) {
         reject("camera_info", error);
         return;
       }
+      if (has_calibration_) geometry_change_ = describeCalibrationChange(calibration_, calib);
       calibration_ = calib;
       has_calibration_ = true;
     }
@@ -645,6 +678,7 @@ void Reconstruction::processPair(const Pair& pair) {
     return;
   }
   last_stamp_ = stamp;
+  if (out_.priors_reset) noteTemporalReset();
   const ros::WallTime t_publish = ros::WallTime::now();
   publishOutputs(pair, out_);
   const ros::WallTime t_done = ros::WallTime::now();
@@ -878,6 +912,9 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("stream restarts", c.restarts);
   stat.add("tf failures", c.tf_failures);
   stat.add("pairs withheld (frozen view)", c.pairs_frozen);
+  stat.add("geometry changes", c.geometry_changes);
+  stat.add("temporal resets", c.temporal_resets);
+  stat.add("last temporal reset", last_reset_reason_);
   stat.add("left view unchanged (pairs)", frozen_views_->unchangedRun(true));
   stat.add("right view unchanged (pairs)", frozen_views_->unchangedRun(false));
   stat.add("latency median (ms)", percentile(lat, 0.5));

@@ -41,6 +41,10 @@
  *   `~freeze_frames` consecutive pairs) stops the output: its pairs are withheld and counted, a
  *   WARN (log, throttled, and diagnostics) names the camera, and the first pair whose view changed
  *   again is matched after a reset of the temporal state (frozen_views.hpp).
+ * - A new camera_info (values or size) or a new image size mid-stream rebuilds the rectification
+ *   and resets the temporal state (priors, fusion, coverage) before the first pair of the new
+ *   geometry, logged once per change; each output is computed from one geometry. camera_info is
+ *   the latest received per side: a pair whose images and camera_info disagree in size is refused.
  * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
  *   two frames.
  *
@@ -89,6 +93,8 @@ struct ReconstructionCounters {
   int64_t restarts = 0;         ///< stream restarts (time jumped back more than restart_jump_back_s)
   int64_t tf_failures = 0;      ///< clouds not published for lack of the target_frame transform
   int64_t pairs_frozen = 0;     ///< pairs withheld because a view was frozen (~freeze_frames)
+  int64_t geometry_changes = 0; ///< new camera_info or image size mid-stream (maps rebuilt)
+  int64_t temporal_resets = 0;  ///< frames whose temporal state was reset first (any reason)
 };
 
 class Reconstruction {
@@ -137,6 +143,10 @@ class Reconstruction {
   void processPair(const Pair& pair);
   /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
   bool withholdFrozen(const Pair& pair);
+  /// After a frame whose temporal state was reset: count it, and log a geometry change once.
+  void noteTemporalReset();
+  static std::string describeCalibrationChange(const StereoCalibration& before,
+                                               const StereoCalibration& after);
   bool checkPair(const Pair& pair, std::string* error);
   void publishOutputs(const Pair& pair, const PipelineOutput& out);
   void reject(const std::string& what, const std::string& error);
@@ -211,6 +221,7 @@ class Reconstruction {
   ros::Time last_stamp_;
   bool warned_not_metric_ = false;
   bool first_pair_logged_ = false;  // the first pair's timings went to the log
+  std::string geometry_change_;     // a camera_info change not yet logged (describeCalibrationChange)
 
   // --- Figures (stats_mutex_).
   mutable std::mutex stats_mutex_;
@@ -222,6 +233,7 @@ class Reconstruction {
   bool last_priors_used_ = false;
   TemporalPriorStats last_prior_stats_;  // the last processed frame's search ranges
   std::string last_error_;
+  std::string last_reset_reason_;  // why the temporal state was last reset
   ros::WallTime last_error_time_;
   ReconstructionCounters diag_prev_;
   ros::WallTime diag_prev_time_;
