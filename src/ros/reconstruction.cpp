@@ -584,7 +584,11 @@ bool Reconstruction::withholdFrozen(const Pair& pair) {
 
 void Reconstruction::processPair(const Pair& pair) {
   // A frozen view came back: what was matched before the freeze was found paired a stale view.
-  if (temporal_reset_pending_.exchange(false)) pipeline_->reset();
+  if (temporal_reset_pending_.exchange(false)) {
+    pipeline_->reset();
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    frames_since_reset_ = 0;
+  }
   // Parameters change only here, between two frames.
   {
     std::lock_guard<std::mutex> lock(params_mutex_);
@@ -629,6 +633,7 @@ void Reconstruction::processPair(const Pair& pair) {
       pipeline_->reset();
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++counters_.restarts;
+      frames_since_reset_ = 0;
     } else {
       std::ostringstream m;
       m.precision(6);
@@ -705,6 +710,8 @@ void Reconstruction::processPair(const Pair& pair) {
   if (out_.rect_quality.valid || out_.rect_quality.misaligned) last_quality_ = out_.rect_quality;
   last_priors_used_ = out_.priors_used;
   last_prior_stats_ = out_.prior_stats;
+  // The temporal state a frame used: a reset before it (any reason) starts a new run at 1.
+  frames_since_reset_ = out_.priors_reset ? 1 : frames_since_reset_ + 1;
 }
 
 void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out) {
@@ -915,6 +922,7 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("geometry changes", c.geometry_changes);
   stat.add("temporal resets", c.temporal_resets);
   stat.add("last temporal reset", last_reset_reason_);
+  stat.add("frames since temporal reset", frames_since_reset_);
   stat.add("left view unchanged (pairs)", frozen_views_->unchangedRun(true));
   stat.add("right view unchanged (pairs)", frozen_views_->unchangedRun(false));
   stat.add("latency median (ms)", percentile(lat, 0.5));

@@ -231,6 +231,7 @@ class Reconstruction {
   double last_density_ = 0.0;
   RectificationQuality last_quality_;
   bool last_priors_used_ = false;
+  int64_t frames_since_reset_ = 0;       // frames matched since the temporal state began (start or reset)
   TemporalPriorStats last_prior_stats_;  // the last processed frame's search ranges
   std::string last_error_;
   std::string last_reset_reason_;  // why the temporal state was last reset
