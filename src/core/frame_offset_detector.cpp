@@ -58,6 +58,17 @@ void FrameOffsetDetector::restart() {
   last_costs_.clear();
 }
 
+void FrameOffsetDetector::recheck() {
+  left_.clear();
+  right_.clear();
+  intervals_.clear();
+  has_stamp_ = false;
+  checking_ = true;
+  check_started_ = frames_;
+  evaluations_ = 0;
+  std::fill(votes_.begin(), votes_.end(), 0);
+}
+
 void FrameOffsetDetector::setDisparityRange(int min_disparity, int max_disparity) {
   if (min_disparity > max_disparity) return;
   min_d_ = min_disparity;

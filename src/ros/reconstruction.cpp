@@ -33,6 +33,8 @@ constexpr double kThrottleS = 5.0;
 // are slower: the first searches the full range, the next ones fill their priors).
 constexpr size_t kRateWindow = 8;
 constexpr int64_t kRateGrace = 10;
+// Repeat of an out-of-step warning that later checks confirm, s.
+constexpr double kStepWarnRepeatS = 30.0;
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
@@ -104,6 +106,12 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   frozen_views_ = std::make_unique<FrozenViews>(ros_params_.freeze_frames, name_,
                                                 nh_.resolveName(left_topic_),
                                                 nh_.resolveName(right_topic_));
+  if (ros_params_.step_check_period_frames > 0) {
+    FrameOffsetParams sp;
+    sp.period_frames = std::max(sp.window_frames, ros_params_.step_check_period_frames);
+    step_ = std::make_unique<FrameOffsetDetector>(params.matcher.min_disparity,
+                                                  params.matcher.max_disparity, sp);
+  }
 
   if (!ros_params_.target_frame.empty()) {
     tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
@@ -302,6 +310,7 @@ void Reconstruction::subscribeInputs() {
     subscribed_since_ = ros::WallTime::now();
   }
   subscribed_ = true;
+  restartStepCheck(true);  // a new stream
   ROS_DEBUG("%s: subscribed to %s and %s", name_.c_str(), nh_.resolveName(left_topic).c_str(),
             nh_.resolveName(right_topic).c_str());
 }
@@ -386,6 +395,7 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
     left_unpaired_since_ = ros::WallTime();
     right_unpaired_since_ = ros::WallTime();
   }
+  checkStep(pair);
   if (withholdFrozen(pair)) return;
   int64_t dropped = 0;
   {
@@ -572,6 +582,65 @@ void Reconstruction::noteTemporalReset() {
   last_reset_reason_ = out_.reset_reason;
 }
 
+void Reconstruction::restartStepCheck(bool forget) {
+  std::lock_guard<std::mutex> lock(step_mutex_);
+  if (!step_) return;
+  if (forget) {
+    step_->restart();
+    step_warned_offset_ = 0;
+    step_warned_ = ros::WallTime();
+  } else {
+    step_->recheck();
+  }
+}
+
+void Reconstruction::checkStep(const Pair& pair) {
+  if (!step_) return;
+  int min_d = 0, max_d = 0;
+  {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    min_d = params_.matcher.min_disparity;
+    max_d = params_.matcher.max_disparity;
+  }
+  cv::Mat left, right;
+  std::string error;
+  // Views of the message data (the detector keeps downsampled copies only); a pair that does
+  // not convert is refused later by the processing thread, with its message.
+  if (!ros_conv::imageToMat(*pair.left, left, &error, false) ||
+      !ros_conv::imageToMat(*pair.right, right, &error, false)) {
+    return;
+  }
+  std::string warn, info;
+  {
+    std::lock_guard<std::mutex> lock(step_mutex_);
+    step_->setDisparityRange(min_d, max_d);
+    if (!step_->update(left, right, pair.left->header.stamp.toSec())) return;
+    const int offset = step_->offset();
+    const ros::WallTime now = ros::WallTime::now();
+    // A new offset is warned at once; the same one, confirmed by a later check, at most every
+    // 30 s (a check every 10 s by default; temporal resets start more).
+    const bool repeat = offset == step_warned_offset_ && !step_warned_.isZero() &&
+                        (now - step_warned_).toSec() < kStepWarnRepeatS;
+    if (offset != 0 && !repeat) {
+      step_warned_ = now;
+      std::ostringstream m;
+      m << "views out of step: " << nh_.resolveName(right_topic_) << " is "
+        << std::abs(offset) << " frame" << (std::abs(offset) > 1 ? "s " : " ")
+        << (offset > 0 ? "late" : "early") << " against " << nh_.resolveName(left_topic_)
+        << " (offset " << (offset > 0 ? "+" : "") << offset << ": left frame t matches right frame t"
+        << (offset > 0 ? "+" : "") << offset << " best); disparities on a moving scene are "
+        << "wrong: check the capture cards' synchronisation";
+      warn = m.str();
+    } else if (offset == 0 && step_warned_offset_ != 0) {
+      info = "views in step again (left frame t matches right frame t best)";
+      step_warned_ = ros::WallTime();
+    }
+    step_warned_offset_ = offset;
+  }
+  if (!warn.empty()) ROS_WARN("%s: %s", name_.c_str(), warn.c_str());
+  if (!info.empty()) ROS_INFO("%s: %s", name_.c_str(), info.c_str());
+}
+
 bool Reconstruction::withholdFrozen(const Pair& pair) {
   const FrozenViews::Verdict v = frozen_views_->check(*pair.left, *pair.right);
   if (v.resumed) temporal_reset_pending_ = true;
@@ -586,6 +655,7 @@ void Reconstruction::processPair(const Pair& pair) {
   // A frozen view came back: what was matched before the freeze was found paired a stale view.
   if (temporal_reset_pending_.exchange(false)) {
     pipeline_->reset();
+    restartStepCheck(false);
     std::lock_guard<std::mutex> lock(stats_mutex_);
     frames_since_reset_ = 0;
   }
@@ -631,6 +701,7 @@ void Reconstruction::processPair(const Pair& pair) {
       ROS_WARN_THROTTLE(kThrottleS, "%s: time went back by %.3f s (a looping bag or a restarted "
                         "driver): temporal state reset", name_.c_str(), back);
       pipeline_->reset();
+      restartStepCheck(false);
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++counters_.restarts;
       frames_since_reset_ = 0;
@@ -683,7 +754,13 @@ void Reconstruction::processPair(const Pair& pair) {
     return;
   }
   last_stamp_ = stamp;
-  if (out_.priors_reset) noteTemporalReset();
+  if (out_.priors_reset) {
+    noteTemporalReset();
+    // A new geometry or a stream that went back in time may come with re-synchronised views:
+    // check again. A gap between processed frames (pairs dropped here, a stall) is not news about
+    // the views' synchronisation.
+    if (out_.reset_reason.find("gap of") == std::string::npos) restartStepCheck(false);
+  }
   const ros::WallTime t_publish = ros::WallTime::now();
   publishOutputs(pair, out_);
   const ros::WallTime t_done = ros::WallTime::now();
@@ -882,6 +959,18 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   const std::vector<double> pipe(pipeline_ms_.begin(), pipeline_ms_.end());
   const bool subscribed = subscribed_.load();
   const std::string frozen = frozen_views_->message();
+  std::string step_state = "off (~step_check_period_frames 0)", step_offset = "unknown";
+  bool out_of_step = false;
+  {
+    std::lock_guard<std::mutex> step_lock(step_mutex_);
+    if (step_) {
+      step_state = step_->describe();
+      if (step_->verdictKnown()) {
+        step_offset = std::to_string(step_->offset());
+        out_of_step = step_->offset() != 0;
+      }
+    }
+  }
 
   if (!subscribed) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "idle: no subscribers to the outputs");
@@ -889,6 +978,8 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "input rejected: " + last_error_);
   } else if (!frozen.empty()) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, frozen);
+  } else if (out_of_step) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "views " + step_state);
   } else if (silent) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no input: " + silence_message_);
   } else if (new_drops > 0) {
@@ -925,6 +1016,8 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("frames since temporal reset", frames_since_reset_);
   stat.add("left view unchanged (pairs)", frozen_views_->unchangedRun(true));
   stat.add("right view unchanged (pairs)", frozen_views_->unchangedRun(false));
+  stat.add("right frame offset", step_offset);
+  stat.add("views in step", step_state);
   stat.add("latency median (ms)", percentile(lat, 0.5));
   stat.add("latency p90 (ms)", percentile(lat, 0.9));
   // The core's share of the latency (Pipeline::process); the rest is waiting in the backlog,

@@ -119,6 +119,9 @@ std::string RosParams::validate() const {
     m << "no_input_warn_s: must be in (0, 3600] s, got " << no_input_warn_s;
   } else if (freeze_frames < 0 || freeze_frames > 1000) {
     m << "freeze_frames: must be in [0, 1000] (0 = off), got " << freeze_frames;
+  } else if (step_check_period_frames < 0 || step_check_period_frames > 100000) {
+    m << "step_check_period_frames: must be in [0, 100000] (0 = off), got "
+      << step_check_period_frames;
   }
   return m.str();
 }
@@ -173,6 +176,7 @@ void forEachRosParam(RosParams& p, F&& f) {
   f("subpixel_delta_d", &p.subpixel_delta_d);
   f("no_input_warn_s", &p.no_input_warn_s);
   f("freeze_frames", &p.freeze_frames);
+  f("step_check_period_frames", &p.step_check_period_frames);
   f("preset", &p.preset);
 }
 

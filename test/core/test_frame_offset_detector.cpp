@@ -167,6 +167,16 @@ TEST(FrameOffsetDetector, RealRightViewOneFrameLateIsPlusOne) {
               in_step.describe().c_str(), took0, costs(in_step).c_str());
 }
 
+TEST(FrameOffsetDetector, RecheckKeepsTheVerdictUntilTheCheckGivesOne) {
+  FrameOffsetDetector d(16, 79);
+  ASSERT_GT(stream(d, generated(), 1), 0);
+  d.recheck();
+  EXPECT_TRUE(d.checking());
+  EXPECT_EQ(d.offset(), 1) << "the verdict holds while the new check runs";
+  ASSERT_GT(stream(d, generated(), 0), 0);
+  EXPECT_EQ(d.offset(), 0);
+}
+
 TEST(FrameOffsetDetector, ParametersAreValidated) {
   FrameOffsetParams p;
   EXPECT_EQ(p.validate(), "");

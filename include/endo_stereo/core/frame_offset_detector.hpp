@@ -15,9 +15,9 @@
  *
  * A still scene gives no verdict: the three right images differ by sensor noise only, so no
  * offset wins by a margin. So does a scene that only moves sideways as a whole (the shift is a
- * disparity change). A check runs at start and after restart() for at most `window_frames`
- * pairs, then again every `period_frames` pairs; a verdict stays until a later check gives
- * another or restart() is called.
+ * disparity change). A check runs at start, after restart() and recheck() for at most
+ * `window_frames` pairs, then again every `period_frames` pairs; a verdict stays until a later
+ * check gives another or restart() is called.
  *
  * Cost: during a check, per pair, a resize and a filter of each view, and on every other pair
  * 3 x (disparities / scale) SADs on the ~160-pixel-wide images (about 6 ms of one core at 160x120
@@ -67,9 +67,11 @@ class FrameOffsetDetector {
   /// verdict (verdictKnown() then holds; the offset may be 0).
   bool update(const cv::Mat& left, const cv::Mat& right, double stamp_s);
 
-  /// Forget the history and any verdict; a check starts with the next pair (a new stream, a
-  /// reset of the pipeline, a new geometry).
+  /// Forget the history and any verdict; a check starts with the next pair (a new stream).
   void restart();
+  /// Start a check with the next pair, keeping the verdict until the check gives one (a reset
+  /// of the pipeline, a new geometry: the same stream, perhaps re-synchronised).
+  void recheck();
   /// A new disparity range (takes effect with the next pair; the history is kept).
   void setDisparityRange(int min_disparity, int max_disparity);
 

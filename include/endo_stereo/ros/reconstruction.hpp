@@ -41,6 +41,11 @@
  *   `~freeze_frames` consecutive pairs) stops the output: its pairs are withheld and counted, a
  *   WARN (log, throttled, and diagnostics) names the camera, and the first pair whose view changed
  *   again is matched after a reset of the temporal state (frozen_views.hpp).
+ * - Views out of step (two capture cards a frame apart): at start, after every temporal reset
+ *   and every `~step_check_period_frames` pairs, consecutive pairs are checked for whether left
+ *   frame t matches right frame t-1, t or t+1 best (FrameOffsetDetector, on downsampled images);
+ *   another offset than 0 is a WARN (log, and diagnostics while it holds) with the offset in
+ *   frames. A still scene gives no verdict.
  * - A new camera_info (values or size) or a new image size mid-stream rebuilds the rectification
  *   and resets the temporal state (priors, fusion, coverage) before the first pair of the new
  *   geometry, logged once per change; each output is computed from one geometry. camera_info is
@@ -76,6 +81,7 @@
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
 
+#include "endo_stereo/core/frame_offset_detector.hpp"
 #include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/ros/frozen_views.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
@@ -143,6 +149,11 @@ class Reconstruction {
   void processPair(const Pair& pair);
   /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
   bool withholdFrozen(const Pair& pair);
+  /// Feeds a formed pair to the out-of-step check (step_); logs a verdict that changed.
+  void checkStep(const Pair& pair);
+  /// A new stream (@p forget: the verdict too) or a reset temporal state (the verdict holds until
+  /// the new check gives one): the out-of-step check starts again.
+  void restartStepCheck(bool forget);
   /// After a frame whose temporal state was reset: count it, and log a geometry change once.
   void noteTemporalReset();
   static std::string describeCalibrationChange(const StereoCalibration& before,
@@ -246,6 +257,13 @@ class Reconstruction {
   // the processing thread for a temporal reset before its next pair.
   std::unique_ptr<FrozenViews> frozen_views_;
   std::atomic<bool> temporal_reset_pending_{false};
+
+  // --- Views out of step: every formed pair goes to the check (callback threads; step_mutex_),
+  // which evaluates consecutive pairs only while a check runs. Null when off.
+  mutable std::mutex step_mutex_;
+  std::unique_ptr<FrameOffsetDetector> step_;
+  int step_warned_offset_ = 0;  // the offset last warned about (0: none, or back in step)
+  ros::WallTime step_warned_;   // when (a confirmed offset is warned again at most every 30 s)
 
   // --- tf2 (only with a target_frame).
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;

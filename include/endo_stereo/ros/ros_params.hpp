@@ -82,6 +82,12 @@ struct RosParams {
   /// never repeats an image exactly (sensor noise), even on a still scene. In [0, 1000];
   /// 0 = off. 10 = 0.4 s at 25 fps.
   int freeze_frames = 10;
+  /// Pairs between two checks that the views are in step (left frame t matches right frame t
+  /// better than right t-1 or t+1 on a moving scene; frame_offset_detector.hpp); a check also runs
+  /// at start and after every temporal reset, and lasts up to 50 pairs. A view found out of step
+  /// is warned about (log and diagnostics) with its offset in frames. In [0, 100000]; 0 = off;
+  /// values below 50 mean 50. 250 = 10 s at 25 fps.
+  int step_check_period_frames = 250;
   /// Name of the preset the parameters came from, for the start-up line only (the launch files
   /// set it to the YAML file they load; "" = none named).
   std::string preset;
