@@ -52,7 +52,11 @@ class NodeProcess:
         self.target = target
         self.log_dir = log_dir
         self.node_exe = node_exe
-        self.params = params or {}
+        self.params = dict(params or {})
+        if target == "endo_stereo":
+            # The driver sends one synthetic pair over and over, a frozen camera by the node's
+            # definition (~freeze_frames): the check is off unless a --param turns it on.
+            self.params.setdefault("freeze_frames", 0)
         self.proc = None
         self.log_path = None
         self.starts = 0

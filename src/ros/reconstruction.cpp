@@ -33,6 +33,8 @@ constexpr double kThrottleS = 5.0;
 // are slower: the first searches the full range, the next ones fill their priors).
 constexpr size_t kRateWindow = 8;
 constexpr int64_t kRateGrace = 10;
+// Repeat of an out-of-step warning that later checks confirm, s.
+constexpr double kStepWarnRepeatS = 30.0;
 
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
@@ -101,6 +103,15 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
   // core at 960x540) is a diagnostic: measured beside the processing at the lowest priority, not
   // inside a frame. (Uncalibrated mode still matches SIFT inline while it pools an estimate.)
   pipeline_->setAsyncRectificationQuality(true);
+  frozen_views_ = std::make_unique<FrozenViews>(ros_params_.freeze_frames, name_,
+                                                nh_.resolveName(left_topic_),
+                                                nh_.resolveName(right_topic_));
+  if (ros_params_.step_check_period_frames > 0) {
+    FrameOffsetParams sp;
+    sp.period_frames = std::max(sp.window_frames, ros_params_.step_check_period_frames);
+    step_ = std::make_unique<FrameOffsetDetector>(params.matcher.min_disparity,
+                                                  params.matcher.max_disparity, sp);
+  }
 
   if (!ros_params_.target_frame.empty()) {
     tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
@@ -311,6 +322,7 @@ void Reconstruction::subscribeInputs() {
     subscribed_since_ = ros::WallTime::now();
   }
   subscribed_ = true;
+  restartStepCheck(true);  // a new stream
   ROS_DEBUG("%s: subscribed to %s and %s", name_.c_str(), nh_.resolveName(left_topic).c_str(),
             nh_.resolveName(right_topic).c_str());
 }
@@ -395,6 +407,8 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
     left_unpaired_since_ = ros::WallTime();
     right_unpaired_since_ = ros::WallTime();
   }
+  checkStep(pair);
+  if (withholdFrozen(pair)) return;
   int64_t dropped = 0;
   {
     std::lock_guard<std::mutex> lock(backlog_mutex_);
@@ -548,7 +562,115 @@ bool Reconstruction::checkPair(const Pair& p, std::string* error) {
   return true;
 }
 
+std::string Reconstruction::describeCalibrationChange(const StereoCalibration& before,
+                                                      const StereoCalibration& after) {
+  std::ostringstream m;
+  m << "camera_info changed mid-stream (";
+  const cv::Size a = before.left.binnedSize(), b = after.left.binnedSize();
+  if (a != b) {
+    m << "image size " << a.width << "x" << a.height << " -> " << b.width << "x" << b.height;
+  } else {
+    m << "new calibration values, " << b.width << "x" << b.height;
+  }
+  m << ")";
+  return m.str();
+}
+
+void Reconstruction::noteTemporalReset() {
+  // A geometry change (new camera_info, or new image size) is said once, with what the pipeline
+  // did about it; time-based resets (gaps, a stream restart) are counted only.
+  const bool size_changed = out_.reset_reason.find("size changed") != std::string::npos;
+  if (!geometry_change_.empty() || size_changed) {
+    const std::string what = !geometry_change_.empty() ? geometry_change_ : "images changed size";
+    ROS_INFO("%s: %s: rectification rebuilt, temporal state reset (%s); outputs from %.6f s on "
+             "use the new geometry only",
+             name_.c_str(), what.c_str(), out_.reset_reason.c_str(), last_stamp_.toSec());
+    geometry_change_.clear();
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++counters_.geometry_changes;
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.temporal_resets;
+  last_reset_reason_ = out_.reset_reason;
+}
+
+void Reconstruction::restartStepCheck(bool forget) {
+  std::lock_guard<std::mutex> lock(step_mutex_);
+  if (!step_) return;
+  if (forget) {
+    step_->restart();
+    step_warned_offset_ = 0;
+    step_warned_ = ros::WallTime();
+  } else {
+    step_->recheck();
+  }
+}
+
+void Reconstruction::checkStep(const Pair& pair) {
+  if (!step_) return;
+  int min_d = 0, max_d = 0;
+  {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    min_d = params_.matcher.min_disparity;
+    max_d = params_.matcher.max_disparity;
+  }
+  cv::Mat left, right;
+  std::string error;
+  // Views of the message data (the detector keeps downsampled copies only); a pair that does
+  // not convert is refused later by the processing thread, with its message.
+  if (!ros_conv::imageToMat(*pair.left, left, &error, false) ||
+      !ros_conv::imageToMat(*pair.right, right, &error, false)) {
+    return;
+  }
+  std::string warn, info;
+  {
+    std::lock_guard<std::mutex> lock(step_mutex_);
+    step_->setDisparityRange(min_d, max_d);
+    if (!step_->update(left, right, pair.left->header.stamp.toSec())) return;
+    const int offset = step_->offset();
+    const ros::WallTime now = ros::WallTime::now();
+    // A new offset is warned at once; the same one, confirmed by a later check, at most every
+    // 30 s (a check every 10 s by default; temporal resets start more).
+    const bool repeat = offset == step_warned_offset_ && !step_warned_.isZero() &&
+                        (now - step_warned_).toSec() < kStepWarnRepeatS;
+    if (offset != 0 && !repeat) {
+      step_warned_ = now;
+      std::ostringstream m;
+      m << "views out of step: " << nh_.resolveName(right_topic_) << " is "
+        << std::abs(offset) << " frame" << (std::abs(offset) > 1 ? "s " : " ")
+        << (offset > 0 ? "late" : "early") << " against " << nh_.resolveName(left_topic_)
+        << " (offset " << (offset > 0 ? "+" : "") << offset << ": left frame t matches right frame t"
+        << (offset > 0 ? "+" : "") << offset << " best); disparities on a moving scene are "
+        << "wrong: check the capture cards' synchronisation";
+      warn = m.str();
+    } else if (offset == 0 && step_warned_offset_ != 0) {
+      info = "views in step again (left frame t matches right frame t best)";
+      step_warned_ = ros::WallTime();
+    }
+    step_warned_offset_ = offset;
+  }
+  if (!warn.empty()) ROS_WARN("%s: %s", name_.c_str(), warn.c_str());
+  if (!info.empty()) ROS_INFO("%s: %s", name_.c_str(), info.c_str());
+}
+
+bool Reconstruction::withholdFrozen(const Pair& pair) {
+  const FrozenViews::Verdict v = frozen_views_->check(*pair.left, *pair.right);
+  if (v.resumed) temporal_reset_pending_ = true;
+  if (!v.withhold) return false;
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++counters_.pairs_received;
+  ++counters_.pairs_frozen;
+  return true;
+}
+
 void Reconstruction::processPair(const Pair& pair) {
+  // A frozen view came back: what was matched before the freeze was found paired a stale view.
+  if (temporal_reset_pending_.exchange(false)) {
+    pipeline_->reset();
+    restartStepCheck(false);
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    frames_since_reset_ = 0;
+  }
   // Parameters change only here, between two frames.
   {
     std::lock_guard<std::mutex> lock(params_mutex_);
@@ -594,8 +716,10 @@ void Reconstruction::processPair(const Pair& pair) {
       ROS_WARN_THROTTLE(kThrottleS, "%s: time went back by %.3f s (a looping bag or a restarted "
                         "driver): temporal state reset", name_.c_str(), back);
       pipeline_->reset();
+      restartStepCheck(false);
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++counters_.restarts;
+      frames_since_reset_ = 0;
     } else {
       std::ostringstream m;
       m.precision(6);
@@ -619,6 +743,7 @@ void Reconstruction::processPair(const Pair& pair) {
         reject("camera_info", error);
         return;
       }
+      if (has_calibration_) geometry_change_ = describeCalibrationChange(calibration_, calib);
       calibration_ = calib;
       has_calibration_ = true;
     }
@@ -644,6 +769,13 @@ void Reconstruction::processPair(const Pair& pair) {
     return;
   }
   last_stamp_ = stamp;
+  if (out_.priors_reset) {
+    noteTemporalReset();
+    // A new geometry or a stream that went back in time may come with re-synchronised views:
+    // check again. A gap between processed frames (pairs dropped here, a stall) is not news about
+    // the views' synchronisation.
+    if (out_.reset_reason.find("gap of") == std::string::npos) restartStepCheck(false);
+  }
   const ros::WallTime t_publish = ros::WallTime::now();
   publishOutputs(pair, out_);
   const ros::WallTime t_done = ros::WallTime::now();
@@ -670,6 +802,8 @@ void Reconstruction::processPair(const Pair& pair) {
   if (out_.rect_quality.valid || out_.rect_quality.misaligned) last_quality_ = out_.rect_quality;
   last_priors_used_ = out_.priors_used;
   last_prior_stats_ = out_.prior_stats;
+  // The temporal state a frame used: a reset before it (any reason) starts a new run at 1.
+  frames_since_reset_ = out_.priors_reset ? 1 : frames_since_reset_ + 1;
 }
 
 void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out) {
@@ -874,11 +1008,28 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   const std::vector<double> lat(latencies_ms_.begin(), latencies_ms_.end());
   const std::vector<double> pipe(pipeline_ms_.begin(), pipeline_ms_.end());
   const bool subscribed = subscribed_.load();
+  const std::string frozen = frozen_views_->message();
+  std::string step_state = "off (~step_check_period_frames 0)", step_offset = "unknown";
+  bool out_of_step = false;
+  {
+    std::lock_guard<std::mutex> step_lock(step_mutex_);
+    if (step_) {
+      step_state = step_->describe();
+      if (step_->verdictKnown()) {
+        step_offset = std::to_string(step_->offset());
+        out_of_step = step_->offset() != 0;
+      }
+    }
+  }
 
   if (!subscribed) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::OK, "idle: no subscribers to the outputs");
   } else if (new_rejects > 0) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::ERROR, "input rejected: " + last_error_);
+  } else if (!frozen.empty()) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, frozen);
+  } else if (out_of_step) {
+    stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "views " + step_state);
   } else if (silent) {
     stat.summary(diagnostic_msgs::DiagnosticStatus::WARN, "no input: " + silence_message_);
   } else if (new_drops > 0) {
@@ -908,6 +1059,15 @@ void Reconstruction::diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat)
   stat.add("pairs waiting", static_cast<int>(waiting));
   stat.add("stream restarts", c.restarts);
   stat.add("tf failures", c.tf_failures);
+  stat.add("pairs withheld (frozen view)", c.pairs_frozen);
+  stat.add("geometry changes", c.geometry_changes);
+  stat.add("temporal resets", c.temporal_resets);
+  stat.add("last temporal reset", last_reset_reason_);
+  stat.add("frames since temporal reset", frames_since_reset_);
+  stat.add("left view unchanged (pairs)", frozen_views_->unchangedRun(true));
+  stat.add("right view unchanged (pairs)", frozen_views_->unchangedRun(false));
+  stat.add("right frame offset", step_offset);
+  stat.add("views in step", step_state);
   stat.add("latency median (ms)", percentile(lat, 0.5));
   stat.add("latency p90 (ms)", percentile(lat, 0.9));
   // The core's share of the latency (Pipeline::process); the rest is waiting in the backlog,

@@ -117,6 +117,11 @@ std::string RosParams::validate() const {
     m << "subpixel_delta_d: must be in (0, 1] px, got " << subpixel_delta_d;
   } else if (!(no_input_warn_s > 0.0 && no_input_warn_s <= 3600.0)) {
     m << "no_input_warn_s: must be in (0, 3600] s, got " << no_input_warn_s;
+  } else if (freeze_frames < 0 || freeze_frames > 1000) {
+    m << "freeze_frames: must be in [0, 1000] (0 = off), got " << freeze_frames;
+  } else if (step_check_period_frames < 0 || step_check_period_frames > 100000) {
+    m << "step_check_period_frames: must be in [0, 100000] (0 = off), got "
+      << step_check_period_frames;
   }
   return m.str();
 }
@@ -170,6 +175,8 @@ void forEachRosParam(RosParams& p, F&& f) {
   f("restart_jump_back_s", &p.restart_jump_back_s);
   f("subpixel_delta_d", &p.subpixel_delta_d);
   f("no_input_warn_s", &p.no_input_warn_s);
+  f("freeze_frames", &p.freeze_frames);
+  f("step_check_period_frames", &p.step_check_period_frames);
   f("preset", &p.preset);
 }
 

@@ -45,6 +45,19 @@
  *   or skipped are counted as dropped. Nothing queues without limit.
  * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
  *   problem, counted as rejected, and the next good pair is processed.
+ * - A frozen camera (a view whose image is bit-identical to its previous one for
+ *   `~freeze_frames` consecutive pairs) stops the output: its pairs are withheld and counted, a
+ *   WARN (log, throttled, and diagnostics) names the camera, and the first pair whose view changed
+ *   again is matched after a reset of the temporal state (frozen_views.hpp).
+ * - Views out of step (two capture cards a frame apart): at start, after every temporal reset
+ *   and every `~step_check_period_frames` pairs, consecutive pairs are checked for whether left
+ *   frame t matches right frame t-1, t or t+1 best (FrameOffsetDetector, on downsampled images);
+ *   another offset than 0 is a WARN (log, and diagnostics while it holds) with the offset in
+ *   frames. A still scene gives no verdict.
+ * - A new camera_info (values or size) or a new image size mid-stream rebuilds the rectification
+ *   and resets the temporal state (priors, fusion, coverage) before the first pair of the new
+ *   geometry, logged once per change; each output is computed from one geometry. camera_info is
+ *   the latest received per side: a pair whose images and camera_info disagree in size is refused.
  * - New pipeline parameters (dynamic_reconfigure) are validated when given and swapped in between
  *   two frames.
  *
@@ -76,7 +89,9 @@
 #include <tf2_ros/buffer.h>
 #include <tf2_ros/transform_listener.h>
 
+#include "endo_stereo/core/frame_offset_detector.hpp"
 #include "endo_stereo/core/pipeline.hpp"
+#include "endo_stereo/ros/frozen_views.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 
 namespace endo_stereo {
@@ -91,6 +106,9 @@ struct ReconstructionCounters {
   int64_t pairs_rejected = 0;   ///< pairs refused (bad input, pipeline error, out of order)
   int64_t restarts = 0;         ///< stream restarts (time jumped back more than restart_jump_back_s)
   int64_t tf_failures = 0;      ///< clouds not published for lack of the target_frame transform
+  int64_t pairs_frozen = 0;     ///< pairs withheld because a view was frozen (~freeze_frames)
+  int64_t geometry_changes = 0; ///< new camera_info or image size mid-stream (maps rebuilt)
+  int64_t temporal_resets = 0;  ///< frames whose temporal state was reset first (any reason)
 };
 
 class Reconstruction {
@@ -137,6 +155,17 @@ class Reconstruction {
   void infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg);
   void workerLoop();
   void processPair(const Pair& pair);
+  /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
+  bool withholdFrozen(const Pair& pair);
+  /// Feeds a formed pair to the out-of-step check (step_); logs a verdict that changed.
+  void checkStep(const Pair& pair);
+  /// A new stream (@p forget: the verdict too) or a reset temporal state (the verdict holds until
+  /// the new check gives one): the out-of-step check starts again.
+  void restartStepCheck(bool forget);
+  /// After a frame whose temporal state was reset: count it, and log a geometry change once.
+  void noteTemporalReset();
+  static std::string describeCalibrationChange(const StereoCalibration& before,
+                                               const StereoCalibration& after);
   bool checkPair(const Pair& pair, std::string* error);
   void publishOutputs(const Pair& pair, const PipelineOutput& out);
   /// depth/*, rgb/*, depth_fused/* (only with subscribers; withheld with a warning when
@@ -218,6 +247,7 @@ class Reconstruction {
   bool warned_no_depth_ = false;  // the RGB-D outputs were withheld (geometry not metric)
   cv::Mat depth_;                 // depth image buffer, reused between frames
   bool first_pair_logged_ = false;  // the first pair's timings went to the log
+  std::string geometry_change_;     // a camera_info change not yet logged (describeCalibrationChange)
 
   // --- Figures (stats_mutex_).
   mutable std::mutex stats_mutex_;
@@ -227,14 +257,28 @@ class Reconstruction {
   double last_density_ = 0.0;
   RectificationQuality last_quality_;
   bool last_priors_used_ = false;
+  int64_t frames_since_reset_ = 0;       // frames matched since the temporal state began (start or reset)
   TemporalPriorStats last_prior_stats_;  // the last processed frame's search ranges
   std::string last_error_;
+  std::string last_reset_reason_;  // why the temporal state was last reset
   ros::WallTime last_error_time_;
   ReconstructionCounters diag_prev_;
   ros::WallTime diag_prev_time_;
   // Silence (diagnostics thread only): the last explanation and when it was made and logged.
   std::string silence_message_;
   ros::WallTime silence_explained_, silence_logged_;
+
+  // --- Frozen cameras: checked on every pair formed (callback threads); a freeze that ended asks
+  // the processing thread for a temporal reset before its next pair.
+  std::unique_ptr<FrozenViews> frozen_views_;
+  std::atomic<bool> temporal_reset_pending_{false};
+
+  // --- Views out of step: every formed pair goes to the check (callback threads; step_mutex_),
+  // which evaluates consecutive pairs only while a check runs. Null when off.
+  mutable std::mutex step_mutex_;
+  std::unique_ptr<FrameOffsetDetector> step_;
+  int step_warned_offset_ = 0;  // the offset last warned about (0: none, or back in step)
+  ros::WallTime step_warned_;   // when (a confirmed offset is warned again at most every 30 s)
 
   // --- tf2 (only with a target_frame).
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;

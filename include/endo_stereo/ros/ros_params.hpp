@@ -76,6 +76,18 @@ struct RosParams {
   /// While an output has subscribers and no image has arrived on either input for this long, a
   /// warning (log and diagnostics) names the topics listened to and the likely fix, s, in (0, 3600].
   double no_input_warn_s = 5.0;
+  /// A view whose image is bit-identical to its previous one for this many consecutive pairs is
+  /// frozen (a capture card re-sending its last frame under new stamps): its pairs are not
+  /// matched, with a warning naming the camera, until its image changes again. A live camera
+  /// never repeats an image exactly (sensor noise), even on a still scene. In [0, 1000];
+  /// 0 = off. 10 = 0.4 s at 25 fps.
+  int freeze_frames = 10;
+  /// Pairs between two checks that the views are in step (left frame t matches right frame t
+  /// better than right t-1 or t+1 on a moving scene; frame_offset_detector.hpp); a check also runs
+  /// at start and after every temporal reset, and lasts up to 50 pairs. A view found out of step
+  /// is warned about (log and diagnostics) with its offset in frames. In [0, 100000]; 0 = off;
+  /// values below 50 mean 50. 250 = 10 s at 25 fps.
+  int step_check_period_frames = 250;
   /// Name of the preset the parameters came from, for the start-up line only (the launch files
   /// set it to the YAML file they load; "" = none named).
   std::string preset;
