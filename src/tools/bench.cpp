@@ -37,6 +37,7 @@
 #include "endo_stereo/core/matcher.hpp"
 #include "endo_stereo/core/params_io.hpp"
 #include "json_writer.hpp"
+#include "tool_args.hpp"
 #include "machine_info.hpp"
 #include "surgical_scene.hpp"
 #include "synthetic_scene.hpp"
@@ -429,8 +430,10 @@ int rssProbe(int argc, char** argv) {
   if (left.empty() || right.empty()) return 3;
   const std::string mode = argv[7];
   endo_stereo::MatcherParams mp;
-  mp.min_disparity = std::atoi(argv[5]);
-  mp.max_disparity = std::atoi(argv[6]);
+  if (!endo_stereo::tools::parseInt(argv[5], &mp.min_disparity) ||
+      !endo_stereo::tools::parseInt(argv[6], &mp.max_disparity)) {
+    return 2;
+  }
   if (mode == "none") {
     // The baseline: the program and its libraries with the two images loaded, no matching.
   } else if (mode == "sgbm") {
@@ -482,46 +485,45 @@ double probePeakRss(const std::string& out_file, const std::vector<std::string>&
   return kib > 0 ? kib / 1024.0 : std::numeric_limits<double>::quiet_NaN();
 }
 
+Options parseArgs(int argc, char** argv) {
+  Options o;
+  endo_stereo::tools::ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("--help") || args.is("-h")) {
+      std::cout << kUsage;
+      std::exit(0);
+    } else if (args.is("--root")) {
+      o.root = args.text();
+    } else if (args.is("--data")) {
+      o.data = args.text();
+    } else if (args.is("--repeats")) {
+      o.repeats = args.integer(1);
+    } else if (args.is("--json")) {
+      o.json = args.text();
+    } else if (args.is("--curve")) {
+      o.curve = args.text();
+    } else if (args.is("--quick")) {
+      o.quick = true;
+    } else if (args.is("--timing-only")) {
+      o.timing_only = true;
+    } else {
+      args.unknown();
+    }
+  }
+  return o;
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
   if (argc > 1 && std::string(argv[1]) == "--rss-probe") return rssProbe(argc, argv);
 
   Options o;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto need = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << "endo_stereo_bench: " << a << " needs a value\n";
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--help" || a == "-h") {
-      std::cout << kUsage;
-      return 0;
-    } else if (a == "--root") {
-      o.root = need();
-    } else if (a == "--data") {
-      o.data = need();
-    } else if (a == "--repeats") {
-      o.repeats = std::atoi(need().c_str());
-      if (o.repeats < 1) {
-        std::cerr << "endo_stereo_bench: --repeats must be >= 1\n";
-        return 2;
-      }
-    } else if (a == "--json") {
-      o.json = need();
-    } else if (a == "--curve") {
-      o.curve = need();
-    } else if (a == "--quick") {
-      o.quick = true;
-    } else if (a == "--timing-only") {
-      o.timing_only = true;
-    } else {
-      std::cerr << "endo_stereo_bench: unknown argument '" << a << "' (see --help)\n";
-      return 2;
-    }
+  try {
+    o = parseArgs(argc, argv);
+  } catch (const endo_stereo::tools::UsageError& e) {
+    std::cerr << "endo_stereo_bench: " << e.what() << "\n";
+    return endo_stereo::tools::kExitUsage;
   }
   if (o.quick) o.repeats = 1;
   if (o.data.empty()) o.data = o.root + "/../shared/data/middlebury";

@@ -5,19 +5,16 @@
 // Exit status: 0 success; 1 an input could not be read or processed (unreadable file, size
 // mismatch, rectification failure, unwritable output); 2 bad usage (unknown flag, bad value,
 // bad parameters or disparity range).
-#include <sys/stat.h>
-
 #include <algorithm>
-#include <cerrno>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <fstream>
 #include <iostream>
+#include <memory>
 #include <opencv2/core.hpp>
 #include <opencv2/core/utility.hpp>
 #include <opencv2/imgcodecs.hpp>
-#include <regex>
 #include <string>
 #include <vector>
 
@@ -25,16 +22,21 @@
 #include "endo_stereo/core/image_io.hpp"
 #include "endo_stereo/core/params_io.hpp"
 #include "endo_stereo/core/pipeline.hpp"
+#include "frame_sources.hpp"
 #include "json_writer.hpp"
+#include "tool_args.hpp"
 #include "tool_params.hpp"
 
 namespace {
 
+using endo_stereo::tools::formatPattern;
+using endo_stereo::tools::isPattern;
 using endo_stereo::tools::JsonWriter;
+using endo_stereo::tools::kExitUsage;
+using endo_stereo::tools::validPattern;
 
 constexpr int kExitOk = 0;
 constexpr int kExitInput = 1;
-constexpr int kExitUsage = 2;
 
 const char* kUsage = R"(endo_stereo_cli - robust dense stereo (Bernhardt et al. 2012) on image files
 
@@ -111,164 +113,92 @@ struct Options {
   bool list_params = false;
 };
 
-struct UsageError {
+using endo_stereo::tools::UsageError;
+
+// An input that cannot be read or processed, or an output that cannot be written (kExitInput).
+struct InputError {
   std::string message;
 };
 
-bool parseInt(const std::string& text, int* out) {
-  char* end = nullptr;
-  errno = 0;
-  const long v = std::strtol(text.c_str(), &end, 10);
-  if (text.empty() || *end != '\0' || errno == ERANGE || v < INT32_MIN || v > INT32_MAX)
-    return false;
-  *out = static_cast<int>(v);
-  return true;
-}
-
-bool parseDouble(const std::string& text, double* out) {
-  char* end = nullptr;
-  const double v = std::strtod(text.c_str(), &end);
-  if (text.empty() || *end != '\0' || !std::isfinite(v)) return false;
-  *out = v;
-  return true;
-}
-
 Options parseArgs(int argc, char** argv) {
   Options o;
-  auto need = [&](int& i, const std::string& flag) -> std::string {
-    if (i + 1 >= argc) throw UsageError{flag + " needs a value"};
-    return argv[++i];
-  };
-  auto needInt = [&](int& i, const std::string& flag) {
-    const std::string v = need(i, flag);
-    int out = 0;
-    if (!parseInt(v, &out)) throw UsageError{flag + ": expected an integer, got '" + v + "'"};
-    return out;
-  };
-  auto needDouble = [&](int& i, const std::string& flag) {
-    const std::string v = need(i, flag);
-    double out = 0;
-    if (!parseDouble(v, &out)) throw UsageError{flag + ": expected a number, got '" + v + "'"};
-    return out;
-  };
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--help" || a == "-h") {
+  endo_stereo::tools::ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("--help") || args.is("-h")) {
       std::cout << kUsage;
       std::exit(kExitOk);
-    } else if (a == "--left") {
-      o.left = need(i, a);
-    } else if (a == "--right") {
-      o.right = need(i, a);
-    } else if (a == "--first") {
-      o.first = needInt(i, a);
+    } else if (args.is("--left")) {
+      o.left = args.text();
+    } else if (args.is("--right")) {
+      o.right = args.text();
+    } else if (args.is("--first")) {
+      o.first = args.integer(0);
       o.has_first = true;
-      if (o.first < 0) throw UsageError{"--first must be >= 0"};
-    } else if (a == "--count") {
-      o.count = needInt(i, a);
-      if (o.count < 1) throw UsageError{"--count must be >= 1"};
-    } else if (a == "--fps") {
-      o.fps = needDouble(i, a);
-      if (o.fps <= 0) throw UsageError{"--fps must be > 0"};
-    } else if (a == "--params") {
-      o.params_file = need(i, a);
-    } else if (a == "--set") {
-      o.overrides.push_back(need(i, a));
-    } else if (a == "--min-disparity") {
-      o.min_disparity = needInt(i, a);
+    } else if (args.is("--count")) {
+      o.count = args.integer(1);
+    } else if (args.is("--fps")) {
+      o.fps = args.positive();
+    } else if (args.is("--params")) {
+      o.params_file = args.text();
+    } else if (args.is("--set")) {
+      o.overrides.push_back(args.text());
+    } else if (args.is("--min-disparity")) {
+      o.min_disparity = args.integer();
       o.has_min = true;
-    } else if (a == "--max-disparity") {
-      o.max_disparity = needInt(i, a);
+    } else if (args.is("--max-disparity")) {
+      o.max_disparity = args.integer();
       o.has_max = true;
-    } else if (a == "--threads") {
-      o.threads = needInt(i, a);
+    } else if (args.is("--threads")) {
+      o.threads = args.integer(0);
       o.has_threads = true;
-      if (o.threads < 0) throw UsageError{"--threads must be >= 0"};
-    } else if (a == "--calib") {
-      o.calib = need(i, a);
-    } else if (a == "--uncalibrated") {
+    } else if (args.is("--calib")) {
+      o.calib = args.text();
+    } else if (args.is("--uncalibrated")) {
       o.uncalibrated = true;
-    } else if (a == "--focal") {
-      o.focal = needDouble(i, a);
+    } else if (args.is("--focal")) {
+      o.focal = args.positive();
       o.has_focal = true;
-      if (o.focal <= 0) throw UsageError{"--focal must be > 0 (px)"};
-    } else if (a == "--baseline") {
-      o.baseline = needDouble(i, a);
+    } else if (args.is("--baseline")) {
+      o.baseline = args.positive();
       o.has_baseline = true;
-      if (o.baseline <= 0) throw UsageError{"--baseline must be > 0 (m)"};
-    } else if (a == "--downsample") {
-      o.downsample = needInt(i, a);
+    } else if (args.is("--downsample")) {
+      o.downsample = args.integer();
       o.has_downsample = true;
-    } else if (a == "--out-rectified") {
-      o.out_rectified = need(i, a);
-    } else if (a == "--out-disparity") {
-      o.out_disparity = need(i, a);
-    } else if (a == "--out-color") {
-      o.out_color = need(i, a);
-    } else if (a == "--out-cloud") {
-      o.out_cloud = need(i, a);
-    } else if (a == "--ply-ascii") {
+    } else if (args.is("--out-rectified")) {
+      o.out_rectified = args.text();
+    } else if (args.is("--out-disparity")) {
+      o.out_disparity = args.text();
+    } else if (args.is("--out-color")) {
+      o.out_color = args.text();
+    } else if (args.is("--out-cloud")) {
+      o.out_cloud = args.text();
+    } else if (args.is("--ply-ascii")) {
       o.ply_ascii = true;
-    } else if (a == "--out-fused") {
-      o.out_fused = need(i, a);
-    } else if (a == "--out-coverage") {
-      o.out_coverage = need(i, a);
-    } else if (a == "--stats") {
-      o.stats = need(i, a);
-    } else if (a == "--no-priors") {
+    } else if (args.is("--out-fused")) {
+      o.out_fused = args.text();
+    } else if (args.is("--out-coverage")) {
+      o.out_coverage = args.text();
+    } else if (args.is("--stats")) {
+      o.stats = args.text();
+    } else if (args.is("--no-priors")) {
       o.no_priors = true;
-    } else if (a == "--quiet") {
+    } else if (args.is("--quiet")) {
       o.quiet = true;
-    } else if (a == "--list-params") {
+    } else if (args.is("--list-params")) {
       o.list_params = true;
     } else {
-      throw UsageError{"unknown argument '" + a + "' (see --help)"};
+      args.unknown();
     }
   }
   if (o.list_params) return o;
-  if (o.left.empty() || o.right.empty()) throw UsageError{"--left and --right are required"};
+  if (o.left.empty() || o.right.empty()) throw UsageError("--left and --right are required");
   if (!o.calib.empty() && o.uncalibrated) {
-    throw UsageError{"--calib and --uncalibrated exclude each other"};
+    throw UsageError("--calib and --uncalibrated exclude each other");
   }
   return o;
 }
 
 // --- file names ------------------------------------------------------------------------------
-
-bool isPattern(const std::string& s) { return s.find('%') != std::string::npos; }
-
-// A sequence pattern holds exactly one integer conversion (%d, %04d, %6i) and no other '%'
-// except '%%'; anything else would make snprintf read arguments that are not there.
-bool validPattern(const std::string& s) {
-  static const std::regex conversion("%[0-9]*[di]");
-  int conversions = 0;
-  for (size_t i = 0; i < s.size(); ++i) {
-    if (s[i] != '%') continue;
-    if (i + 1 < s.size() && s[i + 1] == '%') {
-      ++i;
-      continue;
-    }
-    std::smatch m;
-    const std::string rest = s.substr(i);
-    if (!std::regex_search(rest, m, conversion, std::regex_constants::match_continuous)) {
-      return false;
-    }
-    ++conversions;
-    i += m.length(0) - 1;
-  }
-  return conversions == 1;
-}
-
-std::string formatPattern(const std::string& pattern, int index) {
-  std::vector<char> buf(pattern.size() + 32);
-  std::snprintf(buf.data(), buf.size(), pattern.c_str(), index);
-  return std::string(buf.data());
-}
-
-bool fileExists(const std::string& path) {
-  struct stat st;
-  return ::stat(path.c_str(), &st) == 0 && S_ISREG(st.st_mode);
-}
 
 std::string withSuffix(const std::string& prefix, const std::string& side, bool sequence,
                        int index) {
@@ -289,45 +219,6 @@ std::string lowerExtension(const std::string& path) {
 }
 
 // --- images ----------------------------------------------------------------------------------
-
-// Reads an image as stored (8/16 bit, 1/3/4 channels) and names its ROS encoding. 16-bit colour
-// is scaled to 8 bit (the pipeline's colour encodings are 8-bit).
-bool readImage(const std::string& path, cv::Mat& image, std::string& encoding, std::string* error) {
-  if (!fileExists(path)) {
-    *error = "cannot read image '" + path + "': no such file";
-    return false;
-  }
-  image = cv::imread(path, cv::IMREAD_UNCHANGED);
-  if (image.empty()) {
-    *error = "cannot read image '" + path + "': not an image format OpenCV reads";
-    return false;
-  }
-  const int depth = image.depth(), channels = image.channels();
-  if (depth == CV_16U && channels > 1) {
-    image.convertTo(image, CV_8U, 1.0 / 257.0);
-  } else if (depth != CV_8U && depth != CV_16U) {
-    *error = "image '" + path + "': unsupported pixel depth (8- or 16-bit images only)";
-    return false;
-  }
-  switch (image.type()) {
-    case CV_8UC1:
-      encoding = "mono8";
-      break;
-    case CV_16UC1:
-      encoding = "mono16";
-      break;
-    case CV_8UC3:
-      encoding = "bgr8";
-      break;
-    case CV_8UC4:
-      encoding = "bgra8";
-      break;
-    default:
-      *error = "image '" + path + "': unsupported channel count " + std::to_string(channels);
-      return false;
-  }
-  return true;
-}
 
 bool writeImage(const std::string& path, const cv::Mat& image, std::string* error) {
   bool ok = false;
@@ -517,33 +408,21 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
   return j.str();
 }
 
-// --- main ------------------------------------------------------------------------------------
+// --- steps of a run ---------------------------------------------------------------------------
 
-int run(int argc, char** argv) {
-  Options o;
-  try {
-    o = parseArgs(argc, argv);
-  } catch (const UsageError& e) {
-    std::cerr << "endo_stereo_cli: " << e.message << "\n";
-    return kExitUsage;
-  }
-
-  // Parameters: defaults (input already rectified), then the file, the overrides, the flags.
+// Defaults (input already rectified), then the preset, the overrides, the flags.
+endo_stereo::PipelineParams makeParams(const Options& o) {
   endo_stereo::PipelineParams params;
   params.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
   params.output.point_cloud = false;
-  std::string err =
+  const std::string err =
       endo_stereo::tools::applyPresetAndOverrides(o.params_file, o.overrides, params);
-  if (!err.empty()) {
-    std::cerr << "endo_stereo_cli: " << err << "\n";
-    return kExitUsage;
-  }
+  if (!err.empty()) throw UsageError(err);
   if (o.has_min) params.matcher.min_disparity = o.min_disparity;
   if (o.has_max) params.matcher.max_disparity = o.max_disparity;
   if (params.matcher.min_disparity > params.matcher.max_disparity) {
-    std::cerr << "endo_stereo_cli: bad disparity range: min " << params.matcher.min_disparity
-              << " > max " << params.matcher.max_disparity << "\n";
-    return kExitUsage;
+    throw UsageError("bad disparity range: min " + std::to_string(params.matcher.min_disparity) +
+                     " > max " + std::to_string(params.matcher.max_disparity));
   }
   if (o.has_threads) params.matcher.num_threads = o.threads;
   if (o.has_downsample) params.preprocess.downsample = o.downsample;
@@ -555,242 +434,259 @@ int run(int argc, char** argv) {
   if (!o.out_fused.empty()) params.output.fused = true;
   if (!o.out_coverage.empty()) params.output.coverage = true;
   if (!o.out_cloud.empty()) params.output.point_cloud = true;
-  if (o.list_params) {
-    for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(params)) {
-      std::cout << info.key << " = " << info.value << "  ("
-                << endo_stereo::paramTypeName(info.type);
-      if (!info.choices.empty()) {
-        std::cout << ":";
-        for (const auto& c : info.choices) std::cout << " " << c;
-      }
-      std::cout << ")\n";
-    }
-    return kExitOk;
-  }
-  err = params.validate();
-  if (!err.empty()) {
-    std::cerr << "endo_stereo_cli: bad parameters: " << err << "\n";
-    return kExitUsage;
-  }
-  if (params.rectify.mode == endo_stereo::RectifyMode::kCalibrated && o.calib.empty()) {
-    std::cerr << "endo_stereo_cli: rectify.mode is 'calibrated' but no --calib was given\n";
-    return kExitUsage;
-  }
-  if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
+  return params;
+}
 
-  // Frames.
-  const bool sequence = isPattern(o.left) || isPattern(o.right);
+void printParams(const endo_stereo::PipelineParams& params) {
+  for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(params)) {
+    std::cout << info.key << " = " << info.value << "  (" << endo_stereo::paramTypeName(info.type);
+    if (!info.choices.empty()) {
+      std::cout << ":";
+      for (const auto& c : info.choices) std::cout << " " << c;
+    }
+    std::cout << ")\n";
+  }
+}
+
+// Sequence mode needs patterns for the inputs and the per-frame outputs; a single pair takes
+// neither --first/--count nor a malformed pattern.
+void checkFileNames(const Options& o, bool sequence) {
+  const std::string* outputs[] = {&o.out_disparity, &o.out_color, &o.out_cloud, &o.out_fused};
   if (sequence) {
     if (!isPattern(o.left) || !isPattern(o.right) || !validPattern(o.left) ||
         !validPattern(o.right)) {
-      std::cerr << "endo_stereo_cli: a sequence needs --left and --right patterns with one "
-                   "integer conversion each, e.g. left_%04d.png\n";
-      return kExitUsage;
+      throw UsageError(
+          "a sequence needs --left and --right patterns with one integer conversion each, e.g. "
+          "left_%04d.png");
     }
-    for (const std::string* out : {&o.out_disparity, &o.out_color, &o.out_cloud, &o.out_fused}) {
+    for (const std::string* out : outputs) {
       if (!out->empty() && !(isPattern(*out) && validPattern(*out))) {
-        std::cerr << "endo_stereo_cli: in sequence mode '" << *out
-                  << "' must be a printf pattern with one integer conversion, e.g. disp_%04d.pfm\n";
-        return kExitUsage;
+        throw UsageError("in sequence mode '" + *out +
+                         "' must be a printf pattern with one integer conversion, e.g. "
+                         "disp_%04d.pfm");
       }
     }
-  } else {
-    if (o.has_first || o.count > 0) {
-      std::cerr << "endo_stereo_cli: --first/--count need --left/--right patterns\n";
-      return kExitUsage;
-    }
-    for (const std::string* out : {&o.out_disparity, &o.out_color, &o.out_cloud, &o.out_fused}) {
-      if (!out->empty() && isPattern(*out) && !validPattern(*out)) {
-        std::cerr << "endo_stereo_cli: bad output name '" << *out << "'\n";
-        return kExitUsage;
-      }
+    return;
+  }
+  if (o.has_first || o.count > 0) {
+    throw UsageError("--first/--count need --left/--right patterns");
+  }
+  for (const std::string* out : outputs) {
+    if (!out->empty() && isPattern(*out) && !validPattern(*out)) {
+      throw UsageError("bad output name '" + *out + "'");
     }
   }
-  int first = o.first;
-  if (sequence && !o.has_first && !fileExists(formatPattern(o.left, 0)) &&
-      fileExists(formatPattern(o.left, 1))) {
-    first = 1;
-  }
+}
 
+std::unique_ptr<endo_stereo::Pipeline> makePipeline(const endo_stereo::PipelineParams& params,
+                                                    const std::string& calib) {
   std::unique_ptr<endo_stereo::Pipeline> pipeline;
   try {
     pipeline = std::make_unique<endo_stereo::Pipeline>(params);
   } catch (const std::exception& ex) {
-    std::cerr << "endo_stereo_cli: bad parameters: " << ex.what() << "\n";
-    return kExitUsage;
+    throw UsageError(std::string("bad parameters: ") + ex.what());
   }
-  if (!o.calib.empty()) {
+  if (!calib.empty()) {
     endo_stereo::StereoCalibration calibration;
-    if (!endo_stereo::loadStereoCalibration(o.calib, calibration, &err)) {
-      std::cerr << "endo_stereo_cli: --calib: " << err << "\n";
-      return kExitInput;
+    std::string err;
+    if (!endo_stereo::loadStereoCalibration(calib, calibration, &err)) {
+      throw InputError{"--calib: " + err};
     }
     err = pipeline->setCalibration(calibration);
-    if (!err.empty()) {
-      std::cerr << "endo_stereo_cli: --calib: " << err << "\n";
-      return kExitInput;
-    }
+    if (!err.empty()) throw InputError{"--calib: " + err};
   }
+  return pipeline;
+}
 
-  std::vector<FrameRecord> records;
-  endo_stereo::PipelineOutput out;
-  int failed = 0;
-  bool warned_cloud = false;
-  const int count = sequence ? o.count : 1;  // -1: a sequence runs until its first missing frame
-  for (int n = 0; count < 0 || n < count; ++n) {
-    const int index = first + n;
-    const std::string left_path = sequence ? formatPattern(o.left, index) : o.left;
-    const std::string right_path = sequence ? formatPattern(o.right, index) : o.right;
-    if (sequence && count < 0 && !fileExists(left_path)) {
-      if (n == 0) {
-        std::cerr << "endo_stereo_cli: no frame found: '" << left_path << "' does not exist\n";
-        return kExitInput;
-      }
-      break;  // the end of the sequence
-    }
-    endo_stereo::StereoInput input;
-    if (!readImage(left_path, input.left, input.left_encoding, &err) ||
-        !readImage(right_path, input.right, input.right_encoding, &err)) {
-      std::cerr << "endo_stereo_cli: " << err << "\n";
-      return kExitInput;
-    }
-    if (input.left.size() != input.right.size()) {
-      std::cerr << "endo_stereo_cli: size mismatch: '" << left_path << "' is " << input.left.cols
-                << "x" << input.left.rows << ", '" << right_path << "' is " << input.right.cols
-                << "x" << input.right.rows << "\n";
-      return kExitInput;
-    }
-    input.stamp_s = sequence ? index / o.fps : 0.0;
-    if (!pipeline->process(input, out, &err)) {
-      std::cerr << "endo_stereo_cli: frame " << index << " (" << left_path << "): " << err << "\n";
-      ++failed;
-      if (!sequence) return kExitInput;
-      continue;
-    }
-    FrameRecord r;
-    r.index = index;
-    r.stamp_s = input.stamp_s;
-    r.left = left_path;
-    r.right = right_path;
-    r.size = out.match.disparity.size();
-    r.match = out.match.stats;
-    r.prior = out.prior_stats;
-    r.quality = out.rect_quality;
-    r.priors_used = out.priors_used;
-    r.priors_rejected = out.priors_rejected;
-    r.priors_reset = out.priors_reset;
-    r.reset_reason = out.reset_reason;
-    r.preprocess_ms = out.preprocess_ms;
-    r.rectify_ms = out.rectify_ms;
-    r.match_ms = out.match_ms;
-    r.temporal_ms = out.temporal_ms;
-    r.cloud_ms = out.cloud_ms;
-    r.total_ms = out.total_ms;
-    records.push_back(r);
-    if (out.rect_quality.valid && out.rect_quality.warning &&
-        out.rect_quality.frame_index == out.frame_index) {
-      std::cerr << "endo_stereo_cli: warning: frame " << index
-                << ": rectification leaves a median vertical offset of "
-                << out.rect_quality.median_offset_px << " px (90th percentile "
-                << out.rect_quality.p90_offset_px << " px): check the calibration\n";
-    } else if (out.rect_quality.misaligned && out.rect_quality.frame_index == out.frame_index) {
-      std::cerr << "endo_stereo_cli: warning: frame " << index << ": "
-                << out.rect_quality.message << ": check the calibration\n";
-    }
+FrameRecord makeRecord(const endo_stereo::tools::Frame& frame,
+                       const endo_stereo::PipelineOutput& out) {
+  FrameRecord r;
+  r.index = frame.index;
+  r.stamp_s = frame.input.stamp_s;
+  r.left = frame.left_path;
+  r.right = frame.right_path;
+  r.size = out.match.disparity.size();
+  r.match = out.match.stats;
+  r.prior = out.prior_stats;
+  r.quality = out.rect_quality;
+  r.priors_used = out.priors_used;
+  r.priors_rejected = out.priors_rejected;
+  r.priors_reset = out.priors_reset;
+  r.reset_reason = out.reset_reason;
+  r.preprocess_ms = out.preprocess_ms;
+  r.rectify_ms = out.rectify_ms;
+  r.match_ms = out.match_ms;
+  r.temporal_ms = out.temporal_ms;
+  r.cloud_ms = out.cloud_ms;
+  r.total_ms = out.total_ms;
+  return r;
+}
 
-    // Outputs of this frame.
-    auto name = [&](const std::string& path) {
-      return sequence ? formatPattern(path, index) : path;
-    };
-    if (!o.out_disparity.empty() &&
-        !endo_stereo::writePfm(name(o.out_disparity), out.match.disparity, &err)) {
-      std::cerr << "endo_stereo_cli: " << err << "\n";
-      return kExitInput;
-    }
-    const double d_lo = params.matcher.min_disparity, d_hi = params.matcher.max_disparity;
-    if (!o.out_color.empty() &&
-        !writeImage(name(o.out_color),
-                    endo_stereo::colorizeDisparity(out.match.disparity, d_lo, d_hi), &err)) {
-      std::cerr << "endo_stereo_cli: " << err << "\n";
-      return kExitInput;
-    }
-    if (!o.out_fused.empty()) {
-      const std::string path = name(o.out_fused);
-      const bool ok =
-          lowerExtension(path) == "pfm"
+void warnAboutRectification(const endo_stereo::PipelineOutput& out, int index) {
+  const endo_stereo::RectificationQuality& q = out.rect_quality;
+  if (q.valid && q.warning && q.frame_index == out.frame_index) {
+    std::cerr << "endo_stereo_cli: warning: frame " << index
+              << ": rectification leaves a median vertical offset of " << q.median_offset_px
+              << " px (90th percentile " << q.p90_offset_px << " px): check the calibration\n";
+  } else if (q.misaligned && q.frame_index == out.frame_index) {
+    std::cerr << "endo_stereo_cli: warning: frame " << index << ": " << q.message
+              << ": check the calibration\n";
+  }
+}
+
+void check(bool ok, const std::string& err) {
+  if (!ok) throw InputError{err};
+}
+
+// The per-frame outputs the flags ask for; a sequence's names are its patterns at @p index.
+void writeFrameOutputs(const Options& o, const endo_stereo::PipelineParams& params,
+                       const endo_stereo::PipelineOutput& out, bool sequence, int index,
+                       bool* warned_cloud) {
+  auto name = [&](const std::string& path) {
+    return sequence ? formatPattern(path, index) : path;
+  };
+  std::string err;
+  if (!o.out_disparity.empty()) {
+    check(endo_stereo::writePfm(name(o.out_disparity), out.match.disparity, &err), err);
+  }
+  const double d_lo = params.matcher.min_disparity, d_hi = params.matcher.max_disparity;
+  if (!o.out_color.empty()) {
+    check(writeImage(name(o.out_color),
+                     endo_stereo::colorizeDisparity(out.match.disparity, d_lo, d_hi), &err),
+          err);
+  }
+  if (!o.out_fused.empty()) {
+    const std::string path = name(o.out_fused);
+    check(lowerExtension(path) == "pfm"
               ? endo_stereo::writePfm(path, out.fused_disparity, &err)
               : writeImage(path, endo_stereo::colorizeDisparity(out.fused_disparity, d_lo, d_hi),
-                           &err);
-      if (!ok) {
-        std::cerr << "endo_stereo_cli: " << err << "\n";
-        return kExitInput;
-      }
-    }
-    if (!o.out_rectified.empty()) {
-      if (!writeImage(withSuffix(o.out_rectified, "left", sequence, index), out.left_rect_gray,
-                      &err) ||
-          !writeImage(withSuffix(o.out_rectified, "right", sequence, index), out.right_rect_gray,
-                      &err)) {
-        std::cerr << "endo_stereo_cli: " << err << "\n";
-        return kExitInput;
-      }
-    }
-    if (!o.out_cloud.empty()) {
-      if (!warned_cloud && (out.geometry.polar || !out.cloud.metric)) {
-        std::cerr << "endo_stereo_cli: note: "
-                  << (out.geometry.polar
-                          ? "polar rectification has no depth from disparity: the cloud is empty"
-                          : "no metric geometry (give --calib, or --focal and --baseline): the "
-                            "cloud is in units of the baseline")
-                  << "\n";
-        warned_cloud = true;
-      }
-      if (!endo_stereo::writePly(name(o.out_cloud), out.cloud, !o.ply_ascii, &err)) {
-        std::cerr << "endo_stereo_cli: " << err << "\n";
-        return kExitInput;
-      }
-    }
-    if (!o.quiet) {
-      std::fprintf(stderr, "frame %d: %dx%d density %.1f%% %.1f ms%s%s\n", index, r.size.width,
-                   r.size.height, 100.0 * r.match.density(), r.total_ms,
-                   r.priors_used       ? " (priors)"
-                   : r.priors_rejected ? " (priors rejected: scene change, full range)"
-                                       : "",
-                   r.priors_reset ? (" reset: " + r.reset_reason).c_str() : "");
-    }
+                           &err),
+          err);
   }
+  if (!o.out_rectified.empty()) {
+    check(writeImage(withSuffix(o.out_rectified, "left", sequence, index), out.left_rect_gray,
+                     &err) &&
+              writeImage(withSuffix(o.out_rectified, "right", sequence, index),
+                         out.right_rect_gray, &err),
+          err);
+  }
+  if (o.out_cloud.empty()) return;
+  if (!*warned_cloud && (out.geometry.polar || !out.cloud.metric)) {
+    std::cerr << "endo_stereo_cli: note: "
+              << (out.geometry.polar
+                      ? "polar rectification has no depth from disparity: the cloud is empty"
+                      : "no metric geometry (give --calib, or --focal and --baseline): the "
+                        "cloud is in units of the baseline")
+              << "\n";
+    *warned_cloud = true;
+  }
+  check(endo_stereo::writePly(name(o.out_cloud), out.cloud, !o.ply_ascii, &err), err);
+}
 
+void printProgress(const FrameRecord& r) {
+  std::fprintf(stderr, "frame %d: %dx%d density %.1f%% %.1f ms%s%s\n", r.index, r.size.width,
+               r.size.height, 100.0 * r.match.density(), r.total_ms,
+               r.priors_used       ? " (priors)"
+               : r.priors_rejected ? " (priors rejected: scene change, full range)"
+                                   : "",
+               r.priors_reset ? (" reset: " + r.reset_reason).c_str() : "");
+}
+
+void printSummary(const std::vector<FrameRecord>& records, int failed) {
+  std::vector<double> ms;
+  double density = 0;
+  for (const FrameRecord& r : records) {
+    ms.push_back(r.total_ms);
+    density += r.match.density();
+  }
+  std::fprintf(stderr, "%zu frame(s): median %.1f ms/frame, mean density %.1f%%%s\n",
+               records.size(), median(ms), 100.0 * density / records.size(),
+               failed ? (", " + std::to_string(failed) + " failed").c_str() : "");
+}
+
+// The outputs written once at the end: the coverage picture and the statistics.
+void writeRunOutputs(const Options& o, const endo_stereo::PipelineParams& params,
+                     const endo_stereo::Pipeline& pipeline,
+                     const std::vector<FrameRecord>& records, bool sequence, int failed) {
   if (!o.out_coverage.empty()) {
-    const cv::Mat picture = pipeline->temporal().coverage().colorImage();
-    if (picture.empty()) {
-      std::cerr << "endo_stereo_cli: no coverage to write (no frame was processed)\n";
-      return kExitInput;
-    }
-    if (!writeImage(o.out_coverage, picture, &err)) {
-      std::cerr << "endo_stereo_cli: " << err << "\n";
-      return kExitInput;
-    }
+    const cv::Mat picture = pipeline.temporal().coverage().colorImage();
+    if (picture.empty()) throw InputError{"no coverage to write (no frame was processed)"};
+    std::string err;
+    check(writeImage(o.out_coverage, picture, &err), err);
   }
   if (!o.stats.empty()) {
     std::ofstream f(o.stats);
-    f << statsJson(records, params, sequence, failed, *pipeline, params.output.coverage);
-    if (!f) {
-      std::cerr << "endo_stereo_cli: cannot write '" << o.stats << "'\n";
-      return kExitInput;
-    }
+    f << statsJson(records, params, sequence, failed, pipeline, params.output.coverage);
+    if (!f) throw InputError{"cannot write '" + o.stats + "'"};
   }
-  if (!o.quiet && !records.empty()) {
-    std::vector<double> ms;
-    double density = 0;
-    for (const FrameRecord& r : records) {
-      ms.push_back(r.total_ms);
-      density += r.match.density();
-    }
-    std::fprintf(stderr, "%zu frame(s): median %.1f ms/frame, mean density %.1f%%%s\n",
-                 records.size(), median(ms), 100.0 * density / records.size(),
-                 failed ? (", " + std::to_string(failed) + " failed").c_str() : "");
+}
+
+// --- main ------------------------------------------------------------------------------------
+
+// Options, parameters, file names, the pipeline; then every frame through it and its outputs.
+int process(const Options& o) {
+  const endo_stereo::PipelineParams params = makeParams(o);
+  if (o.list_params) {
+    printParams(params);
+    return kExitOk;
   }
+  const std::string err = params.validate();
+  if (!err.empty()) throw UsageError("bad parameters: " + err);
+  if (params.rectify.mode == endo_stereo::RectifyMode::kCalibrated && o.calib.empty()) {
+    throw UsageError("rectify.mode is 'calibrated' but no --calib was given");
+  }
+  if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
+  const bool sequence = isPattern(o.left) || isPattern(o.right);
+  checkFileNames(o, sequence);
+  const std::unique_ptr<endo_stereo::Pipeline> pipeline = makePipeline(params, o.calib);
+
+  endo_stereo::tools::FrameSourceSettings settings;
+  settings.left = o.left;
+  settings.right = o.right;
+  settings.has_first = o.has_first;
+  settings.first = o.first;
+  settings.count = o.count;
+  settings.fps = o.fps;
+  const std::unique_ptr<endo_stereo::tools::FrameSource> source =
+      endo_stereo::tools::makeFileFrameSource(settings);
+  if (source->size() == 0) throw InputError{"no frame found: " + source->emptyReason()};
+
+  std::vector<FrameRecord> records;
+  endo_stereo::tools::Frame frame;
+  endo_stereo::PipelineOutput out;
+  int failed = 0;
+  bool warned_cloud = false;
+  std::string frame_err;
+  while (source->next(frame, &frame_err)) {
+    if (!pipeline->process(frame.input, out, &frame_err)) {
+      std::cerr << "endo_stereo_cli: frame " << frame.index << " (" << frame.left_path
+                << "): " << frame_err << "\n";
+      ++failed;
+      if (!sequence) return kExitInput;
+      frame_err.clear();
+      continue;
+    }
+    records.push_back(makeRecord(frame, out));
+    warnAboutRectification(out, frame.index);
+    writeFrameOutputs(o, params, out, sequence, frame.index, &warned_cloud);
+    if (!o.quiet) printProgress(records.back());
+  }
+  if (!frame_err.empty()) throw InputError{frame_err};
+  writeRunOutputs(o, params, *pipeline, records, sequence, failed);
+  if (!o.quiet && !records.empty()) printSummary(records, failed);
   return failed ? kExitInput : kExitOk;
+}
+
+int run(int argc, char** argv) {
+  try {
+    return process(parseArgs(argc, argv));
+  } catch (const UsageError& e) {
+    std::cerr << "endo_stereo_cli: " << e.what() << "\n";
+    return kExitUsage;
+  } catch (const InputError& e) {
+    std::cerr << "endo_stereo_cli: " << e.message << "\n";
+    return kExitInput;
+  }
 }
 
 }  // namespace

@@ -36,8 +36,10 @@
 #include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/core/sequence_evaluation.hpp"
 #include "json_writer.hpp"
+#include "tool_args.hpp"
 
 namespace es = endo_stereo;
+using endo_stereo::tools::splitList;
 
 namespace {
 
@@ -69,16 +71,6 @@ std::string loadYaml(const std::string& path, es::MatcherParams& m, es::PostFilt
   m = pp.matcher;
   f = pp.filter;
   return "";
-}
-
-std::vector<std::string> split(const std::string& s, char sep) {
-  std::vector<std::string> out;
-  std::stringstream ss(s);
-  std::string item;
-  while (std::getline(ss, item, sep)) {
-    if (!item.empty()) out.push_back(item);
-  }
-  return out;
 }
 
 // A rectified pair in the layout of SCARED's keyframes (see the header comment).
@@ -140,69 +132,69 @@ int main(int argc, char** argv) {
   bool peers = false, middlebury = true;
   std::string json_path;
   std::vector<std::pair<std::string, std::string>> gt_pairs;  // folder, "MIN:MAX"
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << "missing value after " << a << "\n";
-        std::exit(2);
-      }
-      return argv[++i];
-    };
-    if (a == "--data") {
-      data = next();
-    } else if (a == "--params") {
-      const std::string err = loadYaml(next(), mp, fp);
-      if (!err.empty()) {
-        std::cerr << err << "\n";
+  endo_stereo::tools::ArgReader args(argc, argv);
+  try {
+    while (args.next()) {
+      const std::string a = args.flag();
+      auto next = [&] { return args.text(); };
+      if (a == "--data") {
+        data = next();
+      } else if (a == "--params") {
+        const std::string err = loadYaml(next(), mp, fp);
+        if (!err.empty()) {
+          std::cerr << err << "\n";
+          return 2;
+        }
+      } else if (a == "--set") {
+        const std::string kv = next();
+        const size_t eq = kv.find('=');
+        const std::string err = eq == std::string::npos
+                                    ? "expected key=value: " + kv
+                                    : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
+        if (!err.empty()) {
+          std::cerr << err << "\n";
+          return 2;
+        }
+        if (kv.rfind("matcher.max_disparity", 0) == 0) fixed_max = true;
+      } else if (a == "--scenes") {
+        scenes = splitList(next(), ',');
+      } else if (a == "--sweep") {
+        const std::string kv = next();
+        const size_t eq = kv.find('=');
+        if (eq == std::string::npos) {
+          std::cerr << "--sweep key=v1,v2,...\n";
+          return 2;
+        }
+        sweep_key = kv.substr(0, eq);
+        sweep_values = splitList(kv.substr(eq + 1), ',');
+      } else if (a == "--dump") {
+        dump_dir = next();
+      } else if (a == "--detail") {
+        detail = true;
+      } else if (a == "--peers") {
+        peers = true;
+      } else if (a == "--json") {
+        json_path = next();
+      } else if (a == "--no-middlebury") {
+        middlebury = false;
+      } else if (a == "--gt-pair") {
+        gt_pairs.emplace_back(next(), "");
+      } else if (a == "--gt-range") {
+        if (gt_pairs.empty() || !gt_pairs.back().second.empty()) {
+          std::cerr << "--gt-range MIN:MAX follows its --gt-pair DIR\n";
+          return 2;
+        }
+        gt_pairs.back().second = next();
+      } else {
+        std::cerr << "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
+                     "[--scenes a,b | --no-middlebury] [--sweep k=v1,v2] [--detail] "
+                     "[--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]\n";
         return 2;
       }
-    } else if (a == "--set") {
-      const std::string kv = next();
-      const size_t eq = kv.find('=');
-      const std::string err = eq == std::string::npos
-                                  ? "expected key=value: " + kv
-                                  : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
-      if (!err.empty()) {
-        std::cerr << err << "\n";
-        return 2;
-      }
-      if (kv.rfind("matcher.max_disparity", 0) == 0) fixed_max = true;
-    } else if (a == "--scenes") {
-      scenes = split(next(), ',');
-    } else if (a == "--sweep") {
-      const std::string kv = next();
-      const size_t eq = kv.find('=');
-      if (eq == std::string::npos) {
-        std::cerr << "--sweep key=v1,v2,...\n";
-        return 2;
-      }
-      sweep_key = kv.substr(0, eq);
-      sweep_values = split(kv.substr(eq + 1), ',');
-    } else if (a == "--dump") {
-      dump_dir = next();
-    } else if (a == "--detail") {
-      detail = true;
-    } else if (a == "--peers") {
-      peers = true;
-    } else if (a == "--json") {
-      json_path = next();
-    } else if (a == "--no-middlebury") {
-      middlebury = false;
-    } else if (a == "--gt-pair") {
-      gt_pairs.emplace_back(next(), "");
-    } else if (a == "--gt-range") {
-      if (gt_pairs.empty() || !gt_pairs.back().second.empty()) {
-        std::cerr << "--gt-range MIN:MAX follows its --gt-pair DIR\n";
-        return 2;
-      }
-      gt_pairs.back().second = next();
-    } else {
-      std::cerr << "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
-                   "[--scenes a,b | --no-middlebury] [--sweep k=v1,v2] [--detail] "
-                   "[--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]\n";
-      return 2;
     }
+  } catch (const endo_stereo::tools::UsageError& e) {
+    std::cerr << e.what() << "\n";
+    return endo_stereo::tools::kExitUsage;
   }
   std::vector<es::MiddleburyScene> loaded;
   std::vector<int> min_disparity;  // per loaded scene
@@ -217,7 +209,9 @@ int main(int argc, char** argv) {
   }
   for (const auto& [dir, range] : gt_pairs) {
     int lo = 0, hi = 0;
-    if (std::sscanf(range.c_str(), "%d:%d", &lo, &hi) != 2 || lo < 0 || hi < lo) {
+    const std::vector<std::string> ends = splitList(range, ':');
+    if (ends.size() != 2 || !endo_stereo::tools::parseInt(ends[0], &lo) ||
+        !endo_stereo::tools::parseInt(ends[1], &hi) || lo < 0 || hi < lo) {
       std::cerr << "--gt-pair " << dir << " needs --gt-range MIN:MAX (got '" << range << "')\n";
       return 2;
     }

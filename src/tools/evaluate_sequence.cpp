@@ -33,6 +33,7 @@
 #include "endo_stereo/core/sequence_evaluation.hpp"
 #include "frame_sources.hpp"
 #include "json_writer.hpp"
+#include "tool_args.hpp"
 #include "tool_params.hpp"
 #include "machine_info.hpp"
 
@@ -45,12 +46,14 @@ using endo_stereo::tools::Frame;
 using endo_stereo::tools::FrameSource;
 using endo_stereo::tools::isPattern;
 using endo_stereo::tools::JsonWriter;
+using endo_stereo::tools::kExitUsage;
+using endo_stereo::tools::splitList;
+using endo_stereo::tools::UsageError;
 using endo_stereo::tools::validPattern;
 using Clock = std::chrono::steady_clock;
 
 constexpr int kExitOk = 0;
 constexpr int kExitInput = 1;
-constexpr int kExitUsage = 2;
 
 const char* kUsage =
     R"(endo_stereo_evaluate - ours beside OpenCV BM and SGBM on a recording without ground truth
@@ -127,158 +130,116 @@ struct Options {
   bool quiet = false;
 };
 
-struct UsageError {
-  std::string message;
-};
-
-bool parseInt(const std::string& t, int* out) {
-  char* end = nullptr;
-  const long v = std::strtol(t.c_str(), &end, 10);
-  if (t.empty() || *end != '\0' || v < -1000000000L || v > 1000000000L) return false;
-  *out = static_cast<int>(v);
-  return true;
+// WxH, each side >= 16.
+cv::Size parseCrop(const std::string& v) {
+  int w = 0, h = 0;
+  const auto parts = splitList(v, 'x');
+  if (parts.size() != 2 || !endo_stereo::tools::parseInt(parts[0], &w) ||
+      !endo_stereo::tools::parseInt(parts[1], &h) || w < 16 || h < 16) {
+    throw UsageError("--crop: expected WxH (each >= 16), got '" + v + "'");
+  }
+  return cv::Size(w, h);
 }
 
-std::vector<std::string> split(const std::string& s, char sep) {
-  std::vector<std::string> out;
-  size_t start = 0;
-  while (start <= s.size()) {
-    const size_t e = s.find(sep, start);
-    const std::string item =
-        s.substr(start, e == std::string::npos ? std::string::npos : e - start);
-    if (!item.empty()) out.push_back(item);
-    if (e == std::string::npos) break;
-    start = e + 1;
+std::vector<std::string> parseMethods(const std::string& v) {
+  const std::vector<std::string> methods = splitList(v, ',');
+  for (const std::string& m : methods) {
+    if (m != "ours" && m != "ours-no-priors" && m != "bm" && m != "sgbm") {
+      throw UsageError("--methods: unknown method '" + m + "' (ours, ours-no-priors, bm, sgbm)");
+    }
   }
-  return out;
+  if (methods.empty()) throw UsageError("--methods: empty list");
+  return methods;
 }
 
 Options parseArgs(int argc, char** argv) {
   Options o;
-  auto need = [&](int& i) -> std::string {
-    if (i + 1 >= argc) throw UsageError{std::string(argv[i]) + " needs a value"};
-    return argv[++i];
-  };
-  auto needInt = [&](int& i, int lo) {
-    const std::string flag = argv[i];
-    const std::string v = need(i);
-    int out = 0;
-    if (!parseInt(v, &out) || out < lo) {
-      throw UsageError{flag + ": expected an integer >= " + std::to_string(lo) + ", got '" + v +
-                       "'"};
-    }
-    return out;
-  };
-  auto needDouble = [&](int& i) {
-    const std::string flag = argv[i];
-    const std::string v = need(i);
-    char* end = nullptr;
-    const double d = std::strtod(v.c_str(), &end);
-    if (v.empty() || *end != '\0' || !std::isfinite(d) || d <= 0) {
-      throw UsageError{flag + ": expected a number > 0, got '" + v + "'"};
-    }
-    return d;
-  };
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    if (a == "--help" || a == "-h") {
+  endo_stereo::tools::ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("--help") || args.is("-h")) {
       std::cout << kUsage;
       std::exit(kExitOk);
-    } else if (a == "--left") {
-      o.left = need(i);
-    } else if (a == "--right") {
-      o.right = need(i);
-    } else if (a == "--bag") {
-      o.bag = need(i);
-    } else if (a == "--namespace") {
-      o.ns = need(i);
+    } else if (args.is("--left")) {
+      o.left = args.text();
+    } else if (args.is("--right")) {
+      o.right = args.text();
+    } else if (args.is("--bag")) {
+      o.bag = args.text();
+    } else if (args.is("--namespace")) {
+      o.ns = args.text();
       if (!o.ns.empty() && o.ns.back() == '/') o.ns.pop_back();
-    } else if (a == "--first") {
-      o.first = needInt(i, 0);
+    } else if (args.is("--first")) {
+      o.first = args.integer(0);
       o.has_first = true;
-    } else if (a == "--count") {
-      o.count = needInt(i, 1);
-    } else if (a == "--fps") {
-      o.fps = needDouble(i);
-    } else if (a == "--crop") {
-      const std::string v = need(i);
-      int w = 0, h = 0;
-      const auto parts = split(v, 'x');
-      if (parts.size() != 2 || !parseInt(parts[0], &w) || !parseInt(parts[1], &h) || w < 16 ||
-          h < 16) {
-        throw UsageError{"--crop: expected WxH (each >= 16), got '" + v + "'"};
-      }
-      o.crop = cv::Size(w, h);
-    } else if (a == "--repeat") {
-      o.repeat = needInt(i, 1);
-    } else if (a == "--pan") {
-      o.pan = needInt(i, 1);
-    } else if (a == "--pan-radius") {
-      o.pan_radius = needInt(i, 0);
-    } else if (a == "--pan-period") {
-      o.pan_period = needInt(i, 2);
-    } else if (a == "--params") {
-      o.params_file = need(i);
-    } else if (a == "--set") {
-      o.overrides.push_back(need(i));
-    } else if (a == "--calib") {
-      o.calib = need(i);
-    } else if (a == "--threads") {
-      o.threads = needInt(i, 0);
+    } else if (args.is("--count")) {
+      o.count = args.integer(1);
+    } else if (args.is("--fps")) {
+      o.fps = args.positive();
+    } else if (args.is("--crop")) {
+      o.crop = parseCrop(args.text());
+    } else if (args.is("--repeat")) {
+      o.repeat = args.integer(1);
+    } else if (args.is("--pan")) {
+      o.pan = args.integer(1);
+    } else if (args.is("--pan-radius")) {
+      o.pan_radius = args.integer(0);
+    } else if (args.is("--pan-period")) {
+      o.pan_period = args.integer(2);
+    } else if (args.is("--params")) {
+      o.params_file = args.text();
+    } else if (args.is("--set")) {
+      o.overrides.push_back(args.text());
+    } else if (args.is("--calib")) {
+      o.calib = args.text();
+    } else if (args.is("--threads")) {
+      o.threads = args.integer(0);
       o.has_threads = true;
-    } else if (a == "--min-disparity") {
-      o.min_disparity = needInt(i, -100000);
+    } else if (args.is("--min-disparity")) {
+      o.min_disparity = args.integer(-100000);
       o.has_min = true;
-    } else if (a == "--max-disparity") {
-      o.max_disparity = needInt(i, -100000);
+    } else if (args.is("--max-disparity")) {
+      o.max_disparity = args.integer(-100000);
       o.has_max = true;
-    } else if (a == "--methods") {
-      o.methods = split(need(i), ',');
-      for (const std::string& m : o.methods) {
-        if (m != "ours" && m != "ours-no-priors" && m != "bm" && m != "sgbm") {
-          throw UsageError{"--methods: unknown method '" + m +
-                           "' (ours, ours-no-priors, bm, sgbm)"};
-        }
-      }
-      if (o.methods.empty()) throw UsageError{"--methods: empty list"};
-    } else if (a == "--jump-px") {
-      o.jump_px = needDouble(i);
-    } else if (a == "--window") {
-      o.window = needInt(i, 1);
-    } else if (a == "--skip-timing") {
-      o.skip_timing = needInt(i, 0);
-    } else if (a == "--picture-frame") {
-      o.picture_frame = needInt(i, 0);
-    } else if (a == "--label") {
-      o.label = need(i);
-    } else if (a == "--out") {
-      o.out_dir = need(i);
-    } else if (a == "--json") {
-      o.json = need(i);
-    } else if (a == "--quiet") {
+    } else if (args.is("--methods")) {
+      o.methods = parseMethods(args.text());
+    } else if (args.is("--jump-px")) {
+      o.jump_px = args.positive();
+    } else if (args.is("--window")) {
+      o.window = args.integer(1);
+    } else if (args.is("--skip-timing")) {
+      o.skip_timing = args.integer(0);
+    } else if (args.is("--picture-frame")) {
+      o.picture_frame = args.integer(0);
+    } else if (args.is("--label")) {
+      o.label = args.text();
+    } else if (args.is("--out")) {
+      o.out_dir = args.text();
+    } else if (args.is("--json")) {
+      o.json = args.text();
+    } else if (args.is("--quiet")) {
       o.quiet = true;
     } else {
-      throw UsageError{"unknown argument '" + a + "' (see --help)"};
+      args.unknown();
     }
   }
   const bool files = !o.left.empty() || !o.right.empty();
-  if (files == !o.bag.empty()) throw UsageError{"give either --left and --right, or --bag"};
+  if (files == !o.bag.empty()) throw UsageError("give either --left and --right, or --bag");
   if (files && (o.left.empty() || o.right.empty())) {
-    throw UsageError{"--left and --right go together"};
+    throw UsageError("--left and --right go together");
   }
   if (!o.has_min || !o.has_max)
-    throw UsageError{"--min-disparity and --max-disparity are required"};
+    throw UsageError("--min-disparity and --max-disparity are required");
   if (o.min_disparity < 0 || o.min_disparity > o.max_disparity) {
-    throw UsageError{"bad disparity range " + std::to_string(o.min_disparity) + ".." +
-                     std::to_string(o.max_disparity)};
+    throw UsageError("bad disparity range " + std::to_string(o.min_disparity) + ".." +
+                     std::to_string(o.max_disparity));
   }
-  if (o.repeat > 0 && o.pan > 0) throw UsageError{"--repeat and --pan exclude each other"};
-  if (o.pan > 0 && o.crop.area() == 0) throw UsageError{"--pan needs --crop WxH"};
+  if (o.repeat > 0 && o.pan > 0) throw UsageError("--repeat and --pan exclude each other");
+  if (o.pan > 0 && o.crop.area() == 0) throw UsageError("--pan needs --crop WxH");
   if (!o.bag.empty() && (o.repeat > 0 || o.pan > 0)) {
-    throw UsageError{"--repeat and --pan take a single pair of image files"};
+    throw UsageError("--repeat and --pan take a single pair of image files");
   }
   if (!o.bag.empty() && !o.calib.empty()) {
-    throw UsageError{"--calib is for image files (a bag brings its camera_info)"};
+    throw UsageError("--calib is for image files (a bag brings its camera_info)");
   }
   return o;
 }
@@ -522,7 +483,7 @@ int run(int argc, char** argv) {
   try {
     o = parseArgs(argc, argv);
   } catch (const UsageError& e) {
-    std::cerr << "endo_stereo_evaluate: " << e.message << "\n";
+    std::cerr << "endo_stereo_evaluate: " << e.what() << "\n";
     return kExitUsage;
   }
   if (!o.left.empty()) {

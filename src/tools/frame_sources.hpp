@@ -1,8 +1,8 @@
 /**
  * @file frame_sources.hpp
- * @brief Where endo_stereo_evaluate's frames come from: image files (a pair, or printf patterns
- * for a sequence), one pair repeated or seen through a moving crop window, or a ROS bag with the
- * usual stereo topics. Tools only (the bag reader links rosbag).
+ * @brief Where the tools' frames come from: image files (a pair, or printf patterns for a
+ * sequence), one pair repeated or seen through a moving crop window (frame_sources.cpp, no ROS),
+ * or a ROS bag with the usual stereo topics (frame_source_bag.cpp, links rosbag).
  */
 #pragma once
 
@@ -33,10 +33,12 @@ struct FrameSourceSettings {
   std::string ns = "/endoscope";
 };
 
-/// One pair to evaluate.
+/// One pair to process.
 struct Frame {
   StereoInput input;
   std::string name;  ///< file or stamp, for messages
+  int index = 0;     ///< image files: the sequence index (a single pair: first)
+  std::string left_path, right_path;  ///< image files: the files read (empty for a bag)
 };
 
 /// Frames in order. next() returns false at the end, or on an error with a message in @p error.
@@ -47,17 +49,30 @@ class FrameSource {
   /// Frames this source will give.
   virtual int size() const = 0;
   virtual std::string describe() const = 0;
+  /// Why size() is 0 (a sequence's first file is missing); "" when there are frames.
+  virtual std::string emptyReason() const { return ""; }
   /// A calibration the pipeline must rectify with (a bag's camera_info); false otherwise.
   virtual bool calibration(StereoCalibration*) const { return false; }
 };
 
+/// True when @p path names a regular file.
+bool fileExists(const std::string& path);
+/// @p pattern with @p index in its integer conversion (validPattern(pattern) must hold).
+std::string formatPattern(const std::string& pattern, int index);
 /// True when @p s holds a '%' (a sequence pattern).
 bool isPattern(const std::string& s);
 /// A pattern with exactly one integer conversion (%d, %04d, %i) and no other '%' but '%%'.
 bool validPattern(const std::string& s);
 
-/// The source for @p settings (a bag when bag_path is set). @throws std::exception when a bag
-/// cannot be opened.
+/// Reads an image as stored (8/16 bit, 1/3/4 channels) and names its ROS encoding; 16-bit colour
+/// is scaled to 8 bit. On failure @p error names the file and why.
+bool readImage(const std::string& path, cv::Mat& image, std::string& encoding, std::string* error);
+
+/// The image-file source for @p settings (bag_path ignored); @p settings must outlive it.
+std::unique_ptr<FrameSource> makeFileFrameSource(const FrameSourceSettings& settings);
+
+/// The source for @p settings (a bag when bag_path is set), from frame_source_bag.cpp.
+/// @throws std::exception when a bag cannot be opened.
 std::unique_ptr<FrameSource> makeFrameSource(const FrameSourceSettings& settings);
 
 }  // namespace tools

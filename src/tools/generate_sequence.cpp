@@ -4,6 +4,8 @@
 //
 // Exit status: 0 success; 1 an output could not be written; 2 bad usage.
 #include <chrono>
+#include <climits>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
@@ -26,12 +28,15 @@
 #include "endo_stereo/core/calibration_io.hpp"
 #include "endo_stereo/core/image_io.hpp"
 #include "surgical_scene.hpp"
+#include "tool_args.hpp"
 
 namespace {
 
+using endo_stereo::tools::kExitUsage;
+using endo_stereo::tools::UsageError;
+
 constexpr int kExitOk = 0;
 constexpr int kExitOutput = 1;
-constexpr int kExitUsage = 2;
 
 const char* kUsage = R"(endo_stereo_generate - synthetic surgical stereo video with exact ground truth
 
@@ -123,129 +128,103 @@ void fillImage(const cv::Mat& img, const std::string& encoding, int elem_bytes,
   }
 }
 
-bool parseInt(const std::string& s, int* out) {
-  char* end = nullptr;
-  const long v = std::strtol(s.c_str(), &end, 10);
-  if (s.empty() || *end != '\0') return false;
-  *out = int(v);
-  return true;
-}
-
-bool parseDouble(const std::string& s, double* out) {
-  char* end = nullptr;
-  *out = std::strtod(s.c_str(), &end);
-  return !s.empty() && *end == '\0';
-}
-
-}  // namespace
-
-int main(int argc, char** argv) {
+struct Options {
   endo_stereo::SurgicalSceneParams params;
   std::string out_dir, bag_path, ns = "/endoscope", compression = "none";
   int frames = 100, first = 0, threads = 0;
   double start_time = 1600000000.0;
   bool write_gt = true, write_images = true, bag_gt = false;
+};
 
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto value = [&](std::string* v) {
-      if (i + 1 >= argc) {
-        std::cerr << "endo_stereo_generate: " << a << " needs a value\n";
-        std::exit(kExitUsage);
-      }
-      *v = argv[++i];
-    };
-    auto intValue = [&](int* v) {
-      std::string s;
-      value(&s);
-      if (!parseInt(s, v)) {
-        std::cerr << "endo_stereo_generate: " << a << ": not an integer: " << s << "\n";
-        std::exit(kExitUsage);
-      }
-    };
-    auto doubleValue = [&](double* v) {
-      std::string s;
-      value(&s);
-      if (!parseDouble(s, v)) {
-        std::cerr << "endo_stereo_generate: " << a << ": not a number: " << s << "\n";
-        std::exit(kExitUsage);
-      }
-    };
-    if (a == "-h" || a == "--help") {
+Options parseArgs(int argc, char** argv) {
+  Options o;
+  endo_stereo::SurgicalSceneParams& params = o.params;
+  endo_stereo::tools::ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("-h") || args.is("--help")) {
       std::cout << kUsage;
-      return kExitOk;
-    } else if (a == "--out") {
-      value(&out_dir);
-    } else if (a == "--frames") {
-      intValue(&frames);
-    } else if (a == "--first") {
-      intValue(&first);
-    } else if (a == "--width") {
-      intValue(&params.width);
-    } else if (a == "--height") {
-      intValue(&params.height);
-    } else if (a == "--seed") {
-      int s = 0;
-      intValue(&s);
-      params.seed = uint64_t(uint32_t(s));
-    } else if (a == "--fps") {
-      doubleValue(&params.fps);
-    } else if (a == "--distorted") {
+      std::exit(kExitOk);
+    } else if (args.is("--out")) {
+      o.out_dir = args.text();
+    } else if (args.is("--frames")) {
+      o.frames = args.integer();
+    } else if (args.is("--first")) {
+      o.first = args.integer();
+    } else if (args.is("--width")) {
+      params.width = args.integer();
+    } else if (args.is("--height")) {
+      params.height = args.integer();
+    } else if (args.is("--seed")) {
+      // a 32-bit seed, negative values taken modulo 2^32
+      params.seed = uint64_t(uint32_t(args.integer64(INT32_MIN, UINT32_MAX)));
+    } else if (args.is("--fps")) {
+      params.fps = args.number();
+    } else if (args.is("--distorted")) {
       params.distorted = true;
-    } else if (a == "--instruments") {
-      intValue(&params.instruments);
-    } else if (a == "--instrument-speed") {
-      doubleValue(&params.instrument_speed);
-    } else if (a == "--textureless-instrument") {
+    } else if (args.is("--instruments")) {
+      params.instruments = args.integer();
+    } else if (args.is("--instrument-speed")) {
+      params.instrument_speed = args.number();
+    } else if (args.is("--textureless-instrument")) {
       params.instrument_texture = 0.0;
-    } else if (a == "--no-specular") {
+    } else if (args.is("--no-specular")) {
       params.specular_strength = 0.0;
-    } else if (a == "--noise") {
-      doubleValue(&params.noise_sigma);
-    } else if (a == "--blur") {
-      intValue(&params.motion_blur_samples);
-    } else if (a == "--exposure") {
-      doubleValue(&params.exposure_s);
-    } else if (a == "--interlaced") {
+    } else if (args.is("--noise")) {
+      params.noise_sigma = args.number();
+    } else if (args.is("--blur")) {
+      params.motion_blur_samples = args.integer();
+    } else if (args.is("--exposure")) {
+      params.exposure_s = args.number();
+    } else if (args.is("--interlaced")) {
       params.interlaced = true;
-    } else if (a == "--no-gt") {
-      write_gt = false;
-    } else if (a == "--no-images") {
-      write_images = false;
-    } else if (a == "--threads") {
-      intValue(&threads);
-    } else if (a == "--bag") {
-      value(&bag_path);
-    } else if (a == "--namespace") {
-      value(&ns);
-    } else if (a == "--start-time") {
-      doubleValue(&start_time);
-    } else if (a == "--bag-gt") {
-      bag_gt = true;
-    } else if (a == "--bag-compression") {
-      value(&compression);
+    } else if (args.is("--no-gt")) {
+      o.write_gt = false;
+    } else if (args.is("--no-images")) {
+      o.write_images = false;
+    } else if (args.is("--threads")) {
+      o.threads = args.integer();
+    } else if (args.is("--bag")) {
+      o.bag_path = args.text();
+    } else if (args.is("--namespace")) {
+      o.ns = args.text();
+    } else if (args.is("--start-time")) {
+      o.start_time = args.number();
+    } else if (args.is("--bag-gt")) {
+      o.bag_gt = true;
+    } else if (args.is("--bag-compression")) {
+      o.compression = args.text();
     } else {
-      std::cerr << "endo_stereo_generate: unknown argument " << a << " (see --help)\n";
-      return kExitUsage;
+      args.unknown();
     }
   }
-  if (out_dir.empty() && bag_path.empty()) {
-    std::cerr << "endo_stereo_generate: give --out DIR and/or --bag FILE (see --help)\n";
+  if (o.out_dir.empty() && o.bag_path.empty()) {
+    throw UsageError("give --out DIR and/or --bag FILE (see --help)");
+  }
+  if (o.out_dir.empty()) o.write_images = o.write_gt = false;
+  if (o.frames < 1 || o.first < 0) throw UsageError("--frames must be >= 1 and --first >= 0");
+  if (o.compression != "none" && o.compression != "lz4" && o.compression != "bz2") {
+    throw UsageError("--bag-compression must be none, lz4 or bz2");
+  }
+  if (!(o.start_time > 0)) throw UsageError("--start-time must be > 0");
+  return o;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  try {
+    o = parseArgs(argc, argv);
+  } catch (const UsageError& e) {
+    std::cerr << "endo_stereo_generate: " << e.what() << "\n";
     return kExitUsage;
   }
-  if (out_dir.empty()) write_images = write_gt = false;
-  if (frames < 1 || first < 0) {
-    std::cerr << "endo_stereo_generate: --frames must be >= 1 and --first >= 0\n";
-    return kExitUsage;
-  }
-  if (compression != "none" && compression != "lz4" && compression != "bz2") {
-    std::cerr << "endo_stereo_generate: --bag-compression must be none, lz4 or bz2\n";
-    return kExitUsage;
-  }
-  if (!(start_time > 0)) {
-    std::cerr << "endo_stereo_generate: --start-time must be > 0\n";
-    return kExitUsage;
-  }
+  endo_stereo::SurgicalSceneParams& params = o.params;
+  const std::string &out_dir = o.out_dir, &bag_path = o.bag_path;
+  std::string& ns = o.ns;
+  const int frames = o.frames, first = o.first;
+  const double start_time = o.start_time;
+  const bool write_gt = o.write_gt, write_images = o.write_images, bag_gt = o.bag_gt;
   while (ns.size() > 1 && ns.back() == '/') ns.pop_back();
   if (ns.empty() || ns[0] != '/') ns = "/" + ns;
   const std::string prefix = ns == "/" ? "/" : ns + "/";
@@ -256,7 +235,7 @@ int main(int argc, char** argv) {
       return kExitUsage;
     }
   }
-  cv::setNumThreads(threads);
+  cv::setNumThreads(o.threads);
 
   const auto t0 = std::chrono::steady_clock::now();
   endo_stereo::SurgicalScene scene(params);
@@ -302,8 +281,8 @@ int main(int argc, char** argv) {
   if (!bag_path.empty()) {
     try {
       bag = std::make_unique<rosbag::Bag>(bag_path, rosbag::bagmode::Write);
-      if (compression == "lz4") bag->setCompression(rosbag::compression::LZ4);
-      if (compression == "bz2") bag->setCompression(rosbag::compression::BZ2);
+      if (o.compression == "lz4") bag->setCompression(rosbag::compression::LZ4);
+      if (o.compression == "bz2") bag->setCompression(rosbag::compression::BZ2);
     } catch (const std::exception& e) {
       std::cerr << "endo_stereo_generate: cannot open bag " << bag_path << ": " << e.what() << "\n";
       return kExitOutput;

@@ -21,6 +21,7 @@
 #include "endo_stereo/core/evaluation.hpp"
 #include "endo_stereo/core/matcher.hpp"
 #include "synthetic_scene.hpp"
+#include "tool_args.hpp"
 
 namespace es = endo_stereo;
 
@@ -56,37 +57,87 @@ double timeMs(F&& f, std::vector<double>* cpu = nullptr) {
   return wall;
 }
 
+const char* kUsage =
+    "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] "
+    "[--window-max W] [--only-full | --only-prior] [--quick]\n";
+
+struct Options {
+  int frames = 15, threads = 0, width = 960, height = 540, window_max = 0;
+  bool run_full = true, run_prior = true, quick = false;
+};
+
+Options parseArgs(int argc, char** argv) {
+  Options o;
+  endo_stereo::tools::ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("--help") || args.is("-h")) {
+      std::fputs(kUsage, stdout);
+      std::exit(0);
+    } else if (args.is("--frames")) {
+      o.frames = std::max(1, args.integer());
+    } else if (args.is("--threads")) {
+      o.threads = args.integer();
+    } else if (args.is("--width")) {
+      o.width = args.integer(1);
+    } else if (args.is("--height")) {
+      o.height = args.integer(1);
+    } else if (args.is("--window-max")) {
+      o.window_max = args.integer(0);
+    } else if (args.is("--only-full")) {
+      o.run_prior = false;
+    } else if (args.is("--only-prior")) {
+      o.run_full = false;
+    } else if (args.is("--quick")) {  // for profilers: no warm-up, no SGBM, no thread check
+      o.quick = true;
+    } else {
+      args.unknown();
+    }
+  }
+  return o;
+}
+
+// Identical output whatever the thread count (fixed row stripes, exact sums): 1 vs 2 threads,
+// full search and per-pixel range.
+bool sameOutputAtOneAndTwoThreads(const es::MatcherParams& mp, const es::SyntheticScene& scene,
+                                  const es::SearchRange& range) {
+  es::MatcherParams p1 = mp, p2 = mp;
+  p1.num_threads = 1;
+  p2.num_threads = 2;
+  es::RobustMatcher m1(p1, es::PostFilterParams{}), m2(p2, es::PostFilterParams{});
+  es::MatchResult r1, r2;
+  m1.compute(scene.left, scene.right, r1);
+  m2.compute(scene.left, scene.right, r2);
+  m1.compute(scene.left, scene.right, r1, &range);
+  es::MatchResult r1p = r1;
+  m2.compute(scene.left, scene.right, r2, &range);
+  auto same = [](const cv::Mat& a, const cv::Mat& b) {
+    if (a.size() != b.size() || a.type() != b.type()) return false;
+    for (int y = 0; y < a.rows; ++y) {
+      if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
+    }
+    return true;
+  };
+  es::MatchResult f1, f2;
+  m1.compute(scene.left, scene.right, f1);
+  m2.compute(scene.left, scene.right, f2);
+  return same(f1.disparity, f2.disparity) && same(f1.code, f2.code) &&
+         same(f1.confidence, f2.confidence) && same(r1p.disparity, r2.disparity) &&
+         same(r1p.code, r2.code);
+}
+
 }  // namespace
 
 int main(int argc, char** argv) {
-  int frames = 15, threads = 0, width = 960, height = 540, window_max = 0;
-  bool run_full = true, run_prior = true, quick = false;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() { return i + 1 < argc ? std::atoi(argv[++i]) : 0; };
-    if (a == "--frames")
-      frames = std::max(1, next());
-    else if (a == "--threads")
-      threads = next();
-    else if (a == "--width")
-      width = next();
-    else if (a == "--height")
-      height = next();
-    else if (a == "--window-max")
-      window_max = next();
-    else if (a == "--only-full")
-      run_prior = false;
-    else if (a == "--only-prior")
-      run_full = false;
-    else if (a == "--quick")  // for profilers: no warm-up, no SGBM, no thread-identity check
-      quick = true;
-    else {
-      std::fprintf(stderr,
-                   "usage: endo_stereo_speed [--frames N] [--threads N] [--width W --height H] "
-                   "[--window-max W]\n");
-      return 2;
-    }
+  Options o;
+  try {
+    o = parseArgs(argc, argv);
+  } catch (const endo_stereo::tools::UsageError& e) {
+    std::fprintf(stderr, "endo_stereo_speed: %s\n%s", e.what(), kUsage);
+    return endo_stereo::tools::kExitUsage;
   }
+  const int frames = o.frames, threads = o.threads, width = o.width, height = o.height;
+  const int window_max = o.window_max;
+  const bool run_full = o.run_full, run_prior = o.run_prior, quick = o.quick;
   if (threads > 0) cv::setNumThreads(threads);
 
   es::SyntheticSceneParams sp;
@@ -185,31 +236,8 @@ int main(int argc, char** argv) {
     matcher.compute(scene.left, scene.right, res, &range);
     outcome("+-4 px", res.stats);
   }
-  // Identical output whatever the thread count (fixed row stripes, exact sums).
   if (!quick) {
-    es::MatcherParams p1 = mp, p2 = mp;
-    p1.num_threads = 1;
-    p2.num_threads = 2;
-    es::RobustMatcher m1(p1, es::PostFilterParams{}), m2(p2, es::PostFilterParams{});
-    es::MatchResult r1, r2;
-    m1.compute(scene.left, scene.right, r1);
-    m2.compute(scene.left, scene.right, r2);
-    m1.compute(scene.left, scene.right, r1, &range);
-    es::MatchResult r1p = r1;
-    m2.compute(scene.left, scene.right, r2, &range);
-    auto same = [](const cv::Mat& a, const cv::Mat& b) {
-      if (a.size() != b.size() || a.type() != b.type()) return false;
-      for (int y = 0; y < a.rows; ++y) {
-        if (std::memcmp(a.ptr(y), b.ptr(y), a.cols * a.elemSize()) != 0) return false;
-      }
-      return true;
-    };
-    es::MatchResult f1, f2;
-    m1.compute(scene.left, scene.right, f1);
-    m2.compute(scene.left, scene.right, f2);
-    const bool ok = same(f1.disparity, f2.disparity) && same(f1.code, f2.code) &&
-                    same(f1.confidence, f2.confidence) && same(r1p.disparity, r2.disparity) &&
-                    same(r1p.code, r2.code);
+    const bool ok = sameOutputAtOneAndTwoThreads(mp, scene, range);
     std::printf("  1 vs 2 threads: output %s\n", ok ? "identical (bitwise)" : "DIFFERS");
   }
   return 0;

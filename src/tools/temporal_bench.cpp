@@ -33,6 +33,7 @@
 #include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/core/temporal.hpp"
 #include "surgical_scene.hpp"
+#include "tool_args.hpp"
 
 namespace {
 
@@ -224,63 +225,60 @@ int main(int argc, char** argv) {
   std::string out_dir;
   std::vector<std::string> overrides;
   std::string params_file;
-  for (int i = 1; i < argc; ++i) {
-    const std::string a = argv[i];
-    auto next = [&]() -> std::string {
-      if (i + 1 >= argc) {
-        std::cerr << a << " needs a value\n";
-        std::exit(2);
+  endo_stereo::tools::ArgReader args(argc, argv);
+  try {
+    while (args.next()) {
+      if (args.is("-h") || args.is("--help")) {
+        std::cout << kUsage;
+        return 0;
+      } else if (args.is("--frames")) {
+        frames = args.integer();
+      } else if (args.is("--warmup")) {
+        warmup = args.integer();
+      } else if (args.is("--width")) {
+        sp.width = args.integer();
+      } else if (args.is("--height")) {
+        sp.height = args.integer();
+      } else if (args.is("--seed")) {
+        sp.seed = uint64_t(args.integer64());
+      } else if (args.is("--instrument-speed")) {
+        sp.instrument_speed = args.number();
+      } else if (args.is("--noise")) {
+        sp.noise_sigma = args.number();
+      } else if (args.is("--params")) {
+        params_file = args.text();
+      } else if (args.is("--set")) {
+        overrides.push_back(args.text());
+      } else if (args.is("--levels")) {
+        levels = true;
+      } else if (args.is("--stages")) {
+        stages = true;
+      } else if (args.is("--breakdown")) {
+        breakdown = true;
+      } else if (args.is("--threads")) {
+        threads = args.integer();
+      } else if (args.is("--no-baseline")) {
+        run_without = false;
+      } else if (args.is("--no-sgbm")) {
+        run_sgbm = false;
+      } else if (args.is("--out")) {
+        out_dir = args.text();
+      } else if (args.is("--pipeline")) {
+        pipeline_stages = true;
+      } else if (args.is("--async-quality")) {
+        async_quality = true;
+      } else if (args.is("--pipeline-no-cloud")) {
+        pipeline_stages = true;
+        pipeline_cloud = false;
+      } else if (args.is("--picture-frame")) {
+        picture_frame = args.integer();
+      } else {
+        args.unknown();
       }
-      return argv[++i];
-    };
-    if (a == "-h" || a == "--help") {
-      std::cout << kUsage;
-      return 0;
-    } else if (a == "--frames") {
-      frames = std::atoi(next().c_str());
-    } else if (a == "--warmup") {
-      warmup = std::atoi(next().c_str());
-    } else if (a == "--width") {
-      sp.width = std::atoi(next().c_str());
-    } else if (a == "--height") {
-      sp.height = std::atoi(next().c_str());
-    } else if (a == "--seed") {
-      sp.seed = uint64_t(std::atoll(next().c_str()));
-    } else if (a == "--instrument-speed") {
-      sp.instrument_speed = std::atof(next().c_str());
-    } else if (a == "--noise") {
-      sp.noise_sigma = std::atof(next().c_str());
-    } else if (a == "--params") {
-      params_file = next();
-    } else if (a == "--set") {
-      overrides.push_back(next());
-    } else if (a == "--levels") {
-      levels = true;
-    } else if (a == "--stages") {
-      stages = true;
-    } else if (a == "--breakdown") {
-      breakdown = true;
-    } else if (a == "--threads") {
-      threads = std::atoi(next().c_str());
-    } else if (a == "--no-baseline") {
-      run_without = false;
-    } else if (a == "--no-sgbm") {
-      run_sgbm = false;
-    } else if (a == "--out") {
-      out_dir = next();
-    } else if (a == "--pipeline") {
-      pipeline_stages = true;
-    } else if (a == "--async-quality") {
-      async_quality = true;
-    } else if (a == "--pipeline-no-cloud") {
-      pipeline_stages = true;
-      pipeline_cloud = false;
-    } else if (a == "--picture-frame") {
-      picture_frame = std::atoi(next().c_str());
-    } else {
-      std::cerr << "unknown argument " << a << " (see --help)\n";
-      return 2;
     }
+  } catch (const endo_stereo::tools::UsageError& e) {
+    std::cerr << e.what() << "\n";
+    return endo_stereo::tools::kExitUsage;
   }
   if (frames < 2 || warmup < 0 || warmup >= frames) {
     std::cerr << "--frames must be >= 2 and 0 <= --warmup < --frames\n";

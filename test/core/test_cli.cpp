@@ -214,6 +214,14 @@ TEST_F(CliTest, BadUsageRangesAndParamsExitWithTwoAndSayWhy) {
   const Case cases[] = {
       {"--left left.png --right right.png --min-disparity 20 --max-disparity 10", "range"},
       {"--left left.png --right right.png --max-disparity ten", "--max-disparity"},
+      // A bad number is refused, not read as 0 or as its leading digits.
+      {"--left left.png --right right.png --threads abc",
+       "--threads: expected an integer >= 0, got 'abc'"},
+      {"--left seq_l_%03d.png --right seq_r_%03d.png --count 1x",
+       "--count: expected an integer >= 1, got '1x'"},
+      {"--left left.png --right right.png --max-disparity 1e99",
+       "--max-disparity: expected an integer, got '1e99'"},
+      {"--left left.png --right right.png --fps 0", "--fps: expected a number > 0, got '0'"},
       {"--left left.png --right right.png --set matcher.delta_mn=0.2", "matcher.delta_mn"},
       {"--left left.png --right right.png --set matcher.window_min_px=4", "window_min_px"},
       {"--left left.png --right right.png --set matcher.delta_min=abc", "matcher.delta_min"},

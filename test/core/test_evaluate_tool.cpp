@@ -227,6 +227,14 @@ TEST_F(EvaluateTool, BadUsageExitsWithTwo) {
   EXPECT_EQ(evaluate("--left " + lefts_[0] + " --right " + rights_[0] + range() + " --pan 5"),
             2);  // --pan needs --crop
   EXPECT_EQ(evaluate("--left " + dir_ + "/missing.png --right " + rights_[0] + range()), 1);
+  // A bad number is refused, not read as 0 or as its leading digits.
+  const std::string pair = "--left " + lefts_[0] + " --right " + rights_[0];
+  EXPECT_EQ(evaluate(pair + range() + " --threads abc"), 2);
+  EXPECT_EQ(evaluate(pair + range() + " --jump-px 2px"), 2);
+  EXPECT_EQ(evaluate("--left " + dir_ + "/seq/left/%06d.png --right " + dir_ +
+                     "/seq/right/%06d.png --count 1x" + range()),
+            2);
+  EXPECT_EQ(evaluate(pair + " --min-disparity 0 --max-disparity 1e99"), 2);
 }
 
 // The same check on the real in-vivo recording (frames 1-60, search 0..127) when ../shared/data
