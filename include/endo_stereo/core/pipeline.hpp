@@ -4,7 +4,7 @@
  * post-filter, fuse over time, track coverage, and build the point cloud.
  *
  * The nodelet and the command-line tools both run this class, so what is tuned and measured
- * offline is what runs live (DESIGN.md: one code path).
+ * offline is what runs live: one code path (docs/method.md, section 4, lists the steps it runs).
  *
  * Use:
  * @code
@@ -45,7 +45,7 @@ struct OutputParams {
   std::string validate() const { return {}; }
 };
 
-/// Every component's parameters, one struct each (DESIGN.md: one params struct per component).
+/// Every component's parameters: one params struct per component.
 struct PipelineParams {
   PreprocessParams preprocess;
   RectifyParams rectify;

@@ -1,7 +1,7 @@
 /**
  * @file temporal_matching.hpp
- * @brief The matching passes of one video frame with temporal priors (METHOD.md section 4): priors
- * that add to the full search's result and never take from it.
+ * @brief The matching passes of one video frame with temporal priors (docs/method.md sections 4
+ * and 5.3): priors that add to the full search's result and never take from it.
  *
  * Per frame, between TemporalTracker::beginFrame() and endFrame():
  * 1. no usable prior (the first frame, after a reset or a scene change) and
