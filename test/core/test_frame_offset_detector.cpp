@@ -15,58 +15,24 @@
 #include <opencv2/imgcodecs.hpp>
 
 #include "endo_stereo/core/frame_offset_detector.hpp"
-#include "surgical_scene.hpp"
+#include "frame_sequences.hpp"
 
 namespace endo_stereo {
 namespace {
 
-struct Frames {
-  std::vector<cv::Mat> left, right;
-};
+using Frames = test::FramePairs;
 
-/// @p n consecutive frames of the synthetic scene at 320x240 (search 16..79), with its noise.
+/// 40 consecutive frames of the generated surgical scene at 320x240 (16..79 px), with its noise.
 const Frames& generated() {
-  static Frames* f = [] {
-    auto* out = new Frames;
-    SurgicalSceneParams p;
-    p.width = 320;
-    p.height = 240;
-    p.seed = 3;
-    p.hfov_deg = 2.0 * std::atan(0.5 * 320 / 685.5) * 180.0 / M_PI;
-    p.distorted = false;
-    SurgicalScene scene(p);
-    for (int i = 0; i < 40; ++i) {
-      SurgicalFrame frame;
-      scene.render(i, frame);
-      out->left.push_back(frame.left);
-      out->right.push_back(frame.right);
-    }
-    return out;
-  }();
+  static const Frames* f = new Frames(test::generatedSurgicalFrames(40));
   return *f;
 }
 
-std::string realDir() {
-  const std::string dir = std::string(ES_SHARED_DATA) + "/real/hamlyn_invivo1";
-  char real[PATH_MAX];
-  return realpath(dir.c_str(), real) ? std::string(real) : dir;
-}
+std::string realDir() { return test::invivoDir(ES_SHARED_DATA); }
 
 /// The real rectified in-vivo pairs (360x288, 0..127), empty when absent.
 const Frames& realFrames() {
-  static Frames* f = [] {
-    auto* out = new Frames;
-    for (int i = 1; i <= 60; ++i) {
-      char name[32];
-      std::snprintf(name, sizeof(name), "/%04d.png", i);
-      cv::Mat l = cv::imread(realDir() + "/left" + name, cv::IMREAD_COLOR);
-      cv::Mat r = cv::imread(realDir() + "/right" + name, cv::IMREAD_COLOR);
-      if (l.empty() || r.empty()) break;
-      out->left.push_back(l);
-      out->right.push_back(r);
-    }
-    return out;
-  }();
+  static const Frames* f = new Frames(test::invivoFrames(ES_SHARED_DATA, 60));
   return *f;
 }
 
