@@ -119,8 +119,9 @@ void streamAndCheck(const std::string& ns) {
   EXPECT_EQ(static_cast<double>(disparities.count()), processed)
       << "a processed pair whose disparity never arrived";
   // Each output holds a surface, not a few specks: the default preset outputs about 45% of the
-  // in-vivo frames' pixels on average (BENCHMARKS.md), fewest on the first frame (no priors);
-  // a quarter is well below any frame of it and far above a node that outputs specks.
+  // in-vivo frames' pixels on average (BENCHMARKS.md); the fewest in one output measured here
+  // was 31.2% (printed below). A quarter is below every output of that run and far above a node
+  // that outputs specks.
   double least = 1.0;
   for (const auto& d : disparities.all()) {
     const cv::Mat img = cv_bridge::toCvCopy(d->image)->image;
