@@ -335,17 +335,24 @@ TEST(Rgbd, LazyDepthOnlySubscriptionStartsTheInputs) {
   }
 }
 
-TEST(Rgbd, CalibratedDepthBackProjectsToPoints2) {
+/// The calibrated scene's camera_info and pair sent to the nodelet in @p ns until a complete
+/// output set (with disparity_fused when @p fused) is in @p f.
+bool calibratedSet(const std::string& ns, bool fused, Frame* f) {
   const Scene& s = scene();
-  Input in("/rgbd", false);
-  Outputs out("/rgbd");
-  ASSERT_TRUE(waitUntil([&] { return in.subscribed(); }, 20.0));
+  Input in(ns, false);
+  Outputs out(ns);
+  if (!waitUntil([&] { return in.subscribed(); }, 20.0)) return false;
   in.info(s.left_info, s.right_info);
-  Frame f;
-  ASSERT_TRUE(publishUntilComplete(out, true, [&](const ros::Time& t) {
+  return publishUntilComplete(out, fused, [&](const ros::Time& t) {
     in.pair(s.frame.left, s.frame.right, "bgr8", t, s.left_info.header.frame_id,
             s.right_info.header.frame_id);
-  }, &f)) << "no complete output set";
+  }, f);
+}
+
+TEST(Rgbd, CalibratedDepthBackProjectsToPoints2) {
+  const Scene& s = scene();
+  Frame f;
+  ASSERT_TRUE(calibratedSet("/rgbd", true, &f)) << "no complete output set";
   EXPECT_EQ(f.depth->width, 320u);
   EXPECT_EQ(f.depth->height, 240u);
   // Points2 in the optical frame (target_frame unset): no transform between them.
@@ -376,15 +383,8 @@ TEST(Rgbd, TargetFrameMovesPoints2AndNotTheDepth) {
   tf2_ros::StaticTransformBroadcaster broadcaster;
   broadcaster.sendTransform(tf);
 
-  Input in("/rgbd_tf", false);
-  Outputs out("/rgbd_tf");
-  ASSERT_TRUE(waitUntil([&] { return in.subscribed(); }, 20.0));
-  in.info(s.left_info, s.right_info);
   Frame f;
-  ASSERT_TRUE(publishUntilComplete(out, false, [&](const ros::Time& t) {
-    in.pair(s.frame.left, s.frame.right, "bgr8", t, s.left_info.header.frame_id,
-            s.right_info.header.frame_id);
-  }, &f)) << "no complete output set";
+  ASSERT_TRUE(calibratedSet("/rgbd_tf", false, &f)) << "no complete output set";
   EXPECT_EQ(f.points->header.frame_id, "rgbd_world");
   // The depth image stays in the optical frame of its camera_info, as an RGB-D camera's does.
   EXPECT_EQ(f.depth->header.frame_id, s.left_info.header.frame_id);
@@ -407,15 +407,8 @@ TEST(Rgbd, TargetFrameMovesPoints2AndNotTheDepth) {
 
 TEST(Rgbd, DownsamplingKeepsTheFourConsistent) {
   const Scene& s = scene();
-  Input in("/rgbd_down", false);
-  Outputs out("/rgbd_down");
-  ASSERT_TRUE(waitUntil([&] { return in.subscribed(); }, 20.0));
-  in.info(s.left_info, s.right_info);
   Frame f;
-  ASSERT_TRUE(publishUntilComplete(out, false, [&](const ros::Time& t) {
-    in.pair(s.frame.left, s.frame.right, "bgr8", t, s.left_info.header.frame_id,
-            s.right_info.header.frame_id);
-  }, &f)) << "no complete output set";
+  ASSERT_TRUE(calibratedSet("/rgbd_down", false, &f)) << "no complete output set";
   EXPECT_EQ(f.depth->width, 160u);
   EXPECT_EQ(f.depth->height, 120u);
   expectConsistent(f, Eigen::Isometry3d::Identity());
