@@ -10,9 +10,11 @@
  */
 #pragma once
 
+#include <cmath>
 #include <condition_variable>
 #include <functional>
 #include <map>
+#include <memory>
 #include <mutex>
 #include <set>
 #include <string>
@@ -25,9 +27,41 @@
 #include <sensor_msgs/Image.h>
 
 #include "endo_stereo/ros/conversions.hpp"
+#include "endo_stereo/synthetic/surgical_scene.hpp"
 
 namespace endo_stereo {
 namespace test {
+
+/// The synthetic calibrated scene of the rostests, rendered once per process (rendering is the
+/// slow part): a 320x240 window at the focal length of the 960x540 endoscope (70 deg horizontal
+/// field of view there: f = 480 / tan(35 deg) = 685.5 px), so disparities (about 16..79 px) and
+/// the depth resolution are those of the real scale while a frame stays cheap to match; seed 3,
+/// distorted, so that raw != rectified (the calibrated rectification path is exercised).
+/// Uses endo_stereo_surgical_scene: a test calling it links that library.
+struct CalibratedScene {
+  std::unique_ptr<SurgicalScene> scene;
+  SurgicalFrame frame;
+  sensor_msgs::CameraInfo left_info, right_info;
+};
+constexpr double kSceneFocalPx = 685.5;
+
+inline const CalibratedScene& calibratedScene() {
+  static CalibratedScene* s = [] {
+    auto* sc = new CalibratedScene;
+    SurgicalSceneParams p;
+    p.width = 320;
+    p.height = 240;
+    p.seed = 3;
+    p.hfov_deg = 2.0 * std::atan(0.5 * p.width / kSceneFocalPx) * 180.0 / M_PI;
+    p.distorted = true;
+    sc->scene = std::make_unique<SurgicalScene>(p);
+    sc->scene->render(0, sc->frame);
+    sc->left_info = ros_conv::toCameraInfo(sc->scene->calibration().left);
+    sc->right_info = ros_conv::toCameraInfo(sc->scene->calibration().right);
+    return sc;
+  }();
+  return *s;
+}
 
 /// Subscribes to a topic and keeps every message received, in order.
 template <class M>

@@ -35,39 +35,14 @@ using test::Collector;
 using test::waitUntil;
 using DiagArray = diagnostic_msgs::DiagnosticArray;
 
-// The scene is a 320x240 window at the focal length of the 960x540 endoscope (70 deg horizontal
-// field of view there: f = 480 / tan(35 deg) = 685.5 px), so disparities (about 16..79 px) and
-// the depth resolution are those of the real scale while a frame stays cheap to match.
-constexpr double kFocalPx = 685.5;
+// The scene: test::calibratedScene() (ros_test_utils.hpp).
 // Disparity search range of the .test file (matcher/min_disparity, matcher/max_disparity); the
 // scene's suggested range must lie inside it (checked below).
 constexpr int kMinDisparity = 16;
 constexpr int kMaxDisparity = 79;
 
-/// One rendered frame shared by all tests (rendering is the slow part).
-struct Scene {
-  std::unique_ptr<SurgicalScene> scene;
-  SurgicalFrame frame;
-  sensor_msgs::CameraInfo left_info, right_info;
-};
-
-const Scene& scene() {
-  static Scene* s = [] {
-    auto* sc = new Scene;
-    SurgicalSceneParams p;
-    p.width = 320;
-    p.height = 240;
-    p.seed = 3;
-    p.hfov_deg = 2.0 * std::atan(0.5 * p.width / kFocalPx) * 180.0 / M_PI;
-    p.distorted = true;  // exercise the calibrated rectification path (raw != rectified)
-    sc->scene = std::make_unique<SurgicalScene>(p);
-    sc->scene->render(0, sc->frame);
-    sc->left_info = ros_conv::toCameraInfo(sc->scene->calibration().left);
-    sc->right_info = ros_conv::toCameraInfo(sc->scene->calibration().right);
-    return sc;
-  }();
-  return *s;
-}
+using Scene = test::CalibratedScene;
+const Scene& scene() { return test::calibratedScene(); }
 
 /// Publishers of one stereo namespace. camera_info is latched, so a lazily subscribing nodelet
 /// gets the calibration however late it subscribes.

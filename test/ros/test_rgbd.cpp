@@ -48,33 +48,10 @@ namespace enc = sensor_msgs::image_encodings;
 // doffs applied twice changes z by doffs/d (>= 0.1), a focal length off by one pixel by 1/f.
 constexpr double kRel = 1e-5;
 
-// The synthetic calibrated scene of the other rostests: a 320x240 window at the focal length of
-// the 960x540 endoscope (685.5 px), tissue about 80 mm away, disparities 16..79 px.
-constexpr double kFocalPx = 685.5;
+// The scene: test::calibratedScene() (ros_test_utils.hpp), tissue about 80 mm away.
 
-struct Scene {
-  std::unique_ptr<SurgicalScene> scene;
-  SurgicalFrame frame;
-  sensor_msgs::CameraInfo left_info, right_info;
-};
-
-const Scene& scene() {
-  static Scene* s = [] {
-    auto* sc = new Scene;
-    SurgicalSceneParams p;
-    p.width = 320;
-    p.height = 240;
-    p.seed = 3;
-    p.hfov_deg = 2.0 * std::atan(0.5 * p.width / kFocalPx) * 180.0 / M_PI;
-    p.distorted = true;  // raw != rectified: the depth must be in the rectified view
-    sc->scene = std::make_unique<SurgicalScene>(p);
-    sc->scene->render(0, sc->frame);
-    sc->left_info = ros_conv::toCameraInfo(sc->scene->calibration().left);
-    sc->right_info = ros_conv::toCameraInfo(sc->scene->calibration().right);
-    return sc;
-  }();
-  return *s;
-}
+using Scene = test::CalibratedScene;
+const Scene& scene() { return test::calibratedScene(); }
 
 ros::Time nextStamp() {
   static ros::Time t(1700000000, 0);
