@@ -14,7 +14,7 @@ help:
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
 	@echo "make asan   - ASan+UBSan build in .ws_asan, whole test suite;  make tsan - TSan nodelet run in .ws_tsan"
-	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 20000-frame soak"
+	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 100000-pair soak (about an hour)"
 
 deps:
 	@scripts/install_deps.sh

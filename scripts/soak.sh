@@ -2,7 +2,7 @@
 # Long-run and overload tests of the endo_stereo node (RELIABILITY.md), with a private roscore.
 #
 # Usage: scripts/soak.sh [soak|overload] [extra driver arguments]
-#   soak      (default) SOAK_FRAMES (20000) small pairs (320x240 bgr8 + camera_info) published as
+#   soak      (default) SOAK_FRAMES (100000) small pairs (320x240 bgr8 + camera_info) published as
 #             fast as the node processes them, one at a time, while another thread hammers
 #             dynamic_reconfigure with random valid and invalid values; the node's RSS is sampled
 #             at start, after 500 frames, every 1000 frames and at the end. Fails if a frame is
@@ -13,7 +13,7 @@
 # Environment: WS (workspace with endo_stereo built; default ./.ws), SOAK_OUT (results and logs,
 # default out/reliability), SOAK_LABEL (file name prefix), SOAK_TIMEOUT_S (default 7200).
 # The node runs with a small search range (matcher max_disparity 23, window_max_px 15) so that a
-# 20000-frame run takes minutes on two cores; memory behaviour does not depend on the range.
+# 100000-pair run takes about an hour on two cores; memory behaviour does not depend on the range.
 set -uo pipefail
 source "$(dirname "$0")/env.sh"
 source "$ES_ROOT/scripts/reliability_common.sh"
@@ -36,7 +36,7 @@ common=(--node-exe "$node_exe" --log-dir "$out/logs_$label" --out "$out/$label.j
         --param rectify/quality_stride=100)
 case "$mode" in
   soak)
-    args=(soak --frames "${SOAK_FRAMES:-20000}") ;;
+    args=(soak --frames "${SOAK_FRAMES:-100000}") ;;
   overload)
     args=(overload --rate "${OVERLOAD_RATE:-200}" --seconds "${OVERLOAD_S:-60}"
           --param queue_size=2) ;;
