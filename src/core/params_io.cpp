@@ -283,7 +283,6 @@ const std::vector<Entry>& table() {
                       &TemporalParams::fallback_max_share));
     t.push_back(field("temporal", "fallback_larger_windows", &PP::temporal,
                       &TemporalParams::fallback_larger_windows));
-    t.push_back(field("temporal", "coarse_seed", &PP::temporal, &TemporalParams::coarse_seed));
     t.push_back(field("temporal", "min_prior_hit_share", &PP::temporal,
                       &TemporalParams::min_prior_hit_share));
     t.push_back(field("temporal", "max_gap_s", &PP::temporal, &TemporalParams::max_gap_s));

@@ -199,8 +199,8 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     out.reset_reason = reason;
     out.temporal_ms = msSince(t);
 
-    // --- matching and post-filtering: the narrowed pass, a coarse seed where no prior is usable,
-    // the same-frame fallback for narrowed misses, and a scene change's second go
+    // --- matching and post-filtering: the narrowed pass (the full range where no prior is
+    // usable), the same-frame fallback for narrowed misses, and a scene change's second go
     // (temporal_matching.hpp).
     t = Clock::now();
     TemporalMatchReport report;

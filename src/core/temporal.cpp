@@ -189,31 +189,6 @@ void TemporalPrior::reset() {
   stats_ = TemporalPriorStats();
 }
 
-void TemporalPrior::seed(const cv::Mat& disparity, int min_disparity, int max_disparity) {
-  checkDisparity(disparity, "TemporalPrior::seed");
-  // The stripe turns (frame_count_) go on: a seed replaces the priors, not the schedule.
-  const int64_t frames = frame_count_;
-  reset();
-  frame_count_ = frames;
-  size_ = disparity.size();
-  min_disparity_ = min_disparity;
-  max_disparity_ = max_disparity;
-  disparity.copyTo(last_disparity_);
-  age_.create(size_, CV_16UC1);
-  failures_ = cv::Mat::zeros(size_, CV_8UC1);
-  for (int y = 0; y < size_.height; ++y) {
-    float* d = last_disparity_.ptr<float>(y);
-    uint16_t* age = age_.ptr<uint16_t>(y);
-    for (int x = 0; x < size_.width; ++x) {
-      const bool valid = finite(d[x]);
-      d[x] = valid ? d[x] : std::numeric_limits<float>::quiet_NaN();  // +-inf: none as well
-      age[x] = valid ? uint16_t(0) : kAgeNone;
-    }
-  }
-  stats_ = TemporalPriorStats();
-  seeded_ = true;
-}
-
 int64_t TemporalPrior::selectFallback(const cv::Mat& disparity, int64_t budget,
                                       SearchRange& range) {
   checkDisparity(disparity, "TemporalPrior::selectFallback");
@@ -279,8 +254,6 @@ int64_t TemporalPrior::selectFallback(const cv::Mat& disparity, int64_t budget,
 bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_disparity,
                                SearchRange& range, const cv::Mat& left_gray) {
   stats_ = TemporalPriorStats();
-  stats_.seeded = seeded_;
-  seeded_ = false;
   if (size != size_ || min_disparity != min_disparity_ || max_disparity != max_disparity_ ||
       last_disparity_.empty()) {
     reset();
@@ -980,19 +953,6 @@ bool TemporalTracker::rejectPriors(const cv::Mat& disparity) {
   fusion_.reset();
   priors_used_ = false;
   return true;
-}
-
-const SearchRange* TemporalTracker::seedPriors(const cv::Mat& coarse_disparity,
-                                               const TemporalFrameInfo& info) {
-  checkDisparity(coarse_disparity, "TemporalTracker::seedPriors");
-  if (!params_.enabled || !frame_open_) return nullptr;
-  if (coarse_disparity.size() != info.size) {
-    throw std::invalid_argument("TemporalTracker::seedPriors: coarse disparity size differs");
-  }
-  prior_.seed(coarse_disparity, info.min_disparity, info.max_disparity);
-  priors_used_ =
-      prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_, info.left_gray);
-  return priors_used_ ? &range_ : nullptr;
 }
 
 const SearchRange* TemporalTracker::fallbackRange(const cv::Mat& disparity) {

@@ -47,32 +47,7 @@ bool edgeTestOn(const MatcherParams& p) {
   return p.edge_disparity_jump_px > 0.0 || p.edge_window_max_px > 0;
 }
 
-int floorHalf(int v) { return v >= 0 ? v / 2 : -((-v + 1) / 2); }
-int ceilHalf(int v) { return -floorHalf(-v); }
-
 }  // namespace
-
-MatcherParams coarseMatcherParams(const MatcherParams& full) {
-  MatcherParams p = full;
-  p.min_disparity = floorHalf(full.min_disparity);
-  p.max_disparity = std::max(p.min_disparity, ceilHalf(full.max_disparity));
-  return p;
-}
-
-void upsampleDisparityX2(const cv::Mat& half, cv::Size size, cv::Mat& full) {
-  if (half.type() != CV_32FC1) {
-    throw std::invalid_argument("upsampleDisparityX2: half must be CV_32FC1");
-  }
-  if (half.cols < (size.width + 1) / 2 || half.rows < (size.height + 1) / 2) {
-    throw std::invalid_argument("upsampleDisparityX2: half is smaller than size / 2");
-  }
-  full.create(size, CV_32FC1);
-  for (int y = 0; y < size.height; ++y) {
-    const float* h = half.ptr<float>(y / 2);
-    float* f = full.ptr<float>(y);
-    for (int x = 0; x < size.width; ++x) f[x] = 2.0f * h[x / 2];  // NaN * 2 = NaN
-  }
-}
 
 void applyPostFilter(MatchResult& result, const PostFilterParams& fp) {
   const auto t0 = Clock::now();
@@ -125,29 +100,18 @@ TemporalMatcher::TemporalMatcher(const MatcherParams& matcher_params,
                                  const PostFilterParams& filter_params)
     : matcher_params_(matcher_params),
       filter_params_(filter_params),
-      matcher_(passParams(matcher_params, false), withoutPostFilter(filter_params)),
-      coarse_(coarseMatcherParams(matcher_params), filter_params) {}
+      matcher_(passParams(matcher_params, false), withoutPostFilter(filter_params)) {}
 
 void TemporalMatcher::setParams(const MatcherParams& matcher_params,
                                 const PostFilterParams& filter_params) {
   // Validate everything first so that a throw leaves the old parameters in place.
   std::string err = matcher_params.validate();
   if (err.empty()) err = filter_params.validate();
-  if (err.empty()) err = coarseMatcherParams(matcher_params).validate();
   if (!err.empty()) throw std::invalid_argument(err);
   matcher_.setParams(passParams(matcher_params, larger_windows_),
                      withoutPostFilter(filter_params));
-  coarse_.setParams(coarseMatcherParams(matcher_params), filter_params);
   matcher_params_ = matcher_params;
   filter_params_ = filter_params;
-}
-
-void TemporalMatcher::coarseEstimate(const cv::Mat& left, const cv::Mat& right) {
-  const cv::Size half((left.cols + 1) / 2, (left.rows + 1) / 2);
-  cv::resize(left, left_half_, half, 0, 0, cv::INTER_AREA);
-  cv::resize(right, right_half_, half, 0, 0, cv::INTER_AREA);
-  coarse_.compute(left_half_, right_half_, coarse_result_);
-  upsampleDisparityX2(coarse_result_.disparity, left.size(), seed_);
 }
 
 void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
@@ -156,32 +120,18 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
                               TemporalMatchReport* report) {
   TemporalMatchReport r;
   const TemporalParams& tp = temporal.params();
-  // Larger windows for narrowed misses, except on a seeded frame: there a miss more often means a
-  // coarse value off by more than the range than a window too small, and the seeded frame is the
-  // one that must cost no more than the frames after it.
+  // Larger windows for narrowed misses (TemporalParams::fallback_larger_windows).
   auto useLargerWindows = [&](bool on) {
     if (on == larger_windows_) return;
     matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
     larger_windows_ = on;
   };
-  const bool larger_windows = tp.enabled && tp.fallback_larger_windows;
-  useLargerWindows(larger_windows);
-  const bool can_seed = tp.enabled && tp.coarse_seed && !left.empty() && !right.empty() &&
-                        left.size() == right.size() && left.type() == CV_8UC1 &&
-                        right.type() == CV_8UC1;
+  useLargerWindows(tp.enabled && tp.fallback_larger_windows);
   double match_ms = 0.0, prepare_ms = 0.0, edge_ms = 0.0;
   auto addTimes = [&](const MatchStats& s) {
     match_ms += s.match_ms;
     prepare_ms += s.prepare_ms;
     edge_ms += s.edge_ms;
-  };
-  auto seed = [&]() {
-    const auto t = Clock::now();
-    coarseEstimate(left, right);
-    r.seeded = true;
-    const SearchRange* seeded = temporal.seedPriors(seed_, info);
-    r.coarse_ms += msSince(t);
-    return seeded;
   };
 
   // The depth-edge measure on a result of the passes (which only match), as
@@ -207,19 +157,17 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
     edge_ms += ms;
   };
   auto matchPass = [&](const SearchRange* rg) {
-    useLargerWindows(larger_windows && !r.seeded);
     matcher_.compute(left, right, out, rg);
     addTimes(out.stats);
     edgeTest(out);
   };
 
-  if (!range && can_seed) range = seed();
+  // No usable prior (the first frame, after a reset): the full range, as a full search.
   matchPass(range);
   if (range && temporal.rejectPriors(out.disparity)) {
-    // The priors described another scene: the frame again, from a coarse estimate of this very
-    // frame when that is not what just failed, else over the full range.
+    // The priors described another scene: the frame again over the full range.
     r.priors_rejected = true;
-    range = (can_seed && !r.seeded) ? seed() : nullptr;
+    range = nullptr;
     matchPass(range);
   }
   r.priors_used = range != nullptr;
@@ -278,8 +226,8 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
     }
   }
   applyPostFilter(out, filter_params_);
-  // Matching time of all passes, the coarse estimate included (the post-filter is filter_ms).
-  out.stats.match_ms = match_ms + r.coarse_ms;
+  // Matching time of all passes (the post-filter is filter_ms).
+  out.stats.match_ms = match_ms;
   out.stats.prepare_ms = prepare_ms;
   out.stats.edge_ms = edge_ms;
   if (report) *report = r;

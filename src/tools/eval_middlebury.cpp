@@ -10,7 +10,8 @@
 // repository), scored in its nonocc mask. --gt-pair adds a pair in the layout of SCARED's
 // rectified keyframes: left.png, right.png, disparity_left.tiff (float px, 0 = none),
 // occlusion_left.png (scored where 255), searched over MIN..MAX.
-// Only the `matcher:` and `filter:` sections of FILE are read. The search range of a Middlebury
+// Each pair runs through Pipeline::process as the first frame of a stream (what endo_stereo_cli
+// does with a single pair); every section of FILE applies. The search range of a Middlebury
 // scene is 0 .. max disparity from its info.txt, unless --set matcher.max_disparity=... is given.
 // --peers prints, per pair and method, bad2 and bad3 (shares of output pixels off by more than
 // 2 / 3 px), the mean error over output pixels, density (output pixels / ground-truth pixels in
@@ -43,34 +44,20 @@ using endo_stereo::tools::splitList;
 
 namespace {
 
-// Sets one field by name through the core's parameter table (the keys of the presets and of
-// endo_stereo_cli --set); returns "" or an error naming the key.
-std::string setField(es::MatcherParams& m, es::PostFilterParams& f, const std::string& key,
-                     const std::string& v) {
-  const std::string sec = key.substr(0, key.find('.'));
-  if (sec != "matcher" && sec != "filter") {
-    return "unknown section in " + key + " (this tool takes matcher.* and filter.*)";
-  }
-  es::PipelineParams pp;
-  pp.matcher = m;
-  pp.filter = f;
-  const std::string err = es::setPipelineParam(pp, key, v);
-  if (!err.empty()) return err;
-  m = pp.matcher;
-  f = pp.filter;
-  return "";
-}
-
-// A preset (config/*.yaml): its matcher and filter sections; the others do not apply here.
-std::string loadYaml(const std::string& path, es::MatcherParams& m, es::PostFilterParams& f) {
-  es::PipelineParams pp;
-  pp.matcher = m;
-  pp.filter = f;
-  const std::string err = es::loadPipelineParams(path, pp);
-  if (!err.empty()) return err;
-  m = pp.matcher;
-  f = pp.filter;
-  return "";
+// One pair through Pipeline::process, as endo_stereo_cli runs a single pair (already rectified
+// input, the first frame of a stream): the figures are what a user of the CLI or the nodelet gets.
+// @p ms_taken is the whole process() call.
+bool runPipeline(const es::PipelineParams& params, const es::MiddleburyScene& s,
+                 es::MatchResult& result, double& ms_taken, std::string& error) {
+  es::Pipeline pipeline(params);
+  es::PipelineOutput out;
+  const es::StereoInput in{s.left, s.right, "mono8", "mono8", 0.0};
+  const auto t0 = std::chrono::steady_clock::now();
+  const bool ok = pipeline.process(in, out, &error);
+  ms_taken = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0)
+                 .count();
+  result = out.match;
+  return ok;
 }
 
 // A rectified pair in the layout of SCARED's keyframes (see the header comment).
@@ -122,8 +109,11 @@ double shareAbove(const cv::Mat& d, const cv::Mat& gt, const cv::Mat& mask, doub
 int main(int argc, char** argv) {
   std::string data = std::string(ES_SOURCE_DIR) + "/../shared/data/middlebury";
   std::vector<std::string> scenes = {"tsukuba", "venus", "teddy"};
-  es::MatcherParams mp;
-  es::PostFilterParams fp;
+  // Every section applies (--params, --set); the input is rectified, so no rectification runs,
+  // and nothing but the disparity is produced.
+  es::PipelineParams pp;
+  pp.rectify.mode = es::RectifyMode::kPassThrough;
+  pp.output.point_cloud = false;
   bool detail = false;
   std::string dump_dir;
   bool fixed_max = false;
@@ -140,7 +130,7 @@ int main(int argc, char** argv) {
       if (a == "--data") {
         data = next();
       } else if (a == "--params") {
-        const std::string err = loadYaml(next(), mp, fp);
+        const std::string err = es::loadPipelineParams(next(), pp);
         if (!err.empty()) {
           std::cerr << err << "\n";
           return 2;
@@ -150,7 +140,7 @@ int main(int argc, char** argv) {
         const size_t eq = kv.find('=');
         const std::string err = eq == std::string::npos
                                     ? "expected key=value: " + kv
-                                    : setField(mp, fp, kv.substr(0, eq), kv.substr(eq + 1));
+                                    : es::setPipelineParam(pp, kv.substr(0, eq), kv.substr(eq + 1));
         if (!err.empty()) {
           std::cerr << err << "\n";
           return 2;
@@ -239,11 +229,11 @@ int main(int argc, char** argv) {
     for (size_t k = 0; k < loaded.size(); ++k) {
       const es::MiddleburyScene& s = loaded[k];
       const int lo = min_disparity[k];
-      es::MatcherParams ms = mp;
-      ms.min_disparity = lo;
-      if (!fixed_max) ms.max_disparity = s.max_disp;
-      std::string err = ms.validate();
-      if (err.empty()) err = fp.validate();
+      es::PipelineParams ps = pp;
+      ps.matcher.min_disparity = lo;
+      if (!fixed_max) ps.matcher.max_disparity = s.max_disp;
+      const es::MatcherParams& ms = ps.matcher;
+      const std::string err = ps.validate();
       if (!err.empty()) {
         std::cerr << err << "\n";
         return 2;
@@ -255,11 +245,15 @@ int main(int argc, char** argv) {
       j.key("methods").beginArray();
       for (const char* method : {"ours", "OpenCV BM", "OpenCV SGBM"}) {
         cv::Mat d;
+        double ms_taken = 0.0;
         const auto t0 = std::chrono::steady_clock::now();
         if (std::string(method) == "ours") {
-          es::RobustMatcher matcher(ms, fp);
           es::MatchResult r;
-          matcher.compute(s.left, s.right, r);
+          std::string error;
+          if (!runPipeline(ps, s, r, ms_taken, error)) {
+            std::cerr << s.name << ": " << error << "\n";
+            return 1;
+          }
           d = r.disparity;
         } else {
           cv::Ptr<cv::StereoMatcher> m;
@@ -271,9 +265,9 @@ int main(int argc, char** argv) {
           cv::Mat raw;
           m->compute(s.left, s.right, raw);
           d = es::referenceDisparityToFloat(raw, lo);
+          ms_taken = std::chrono::duration<double, std::milli>(
+                         std::chrono::steady_clock::now() - t0).count();
         }
-        const double ms_taken = std::chrono::duration<double, std::milli>(
-                                    std::chrono::steady_clock::now() - t0).count();
         const es::DisparityScore sc = es::scoreDisparity(d, s.gt, s.nonocc);
         const double bad3 = shareAbove(d, s.gt, s.nonocc, 3.0);
         std::printf("| %s %dx%d, %d..%d | %s | %.2f | %.2f | %.2f | %.1f | %.1f |\n",
@@ -304,10 +298,9 @@ int main(int argc, char** argv) {
   std::printf("%-10s %-8s %7s %7s %8s %7s %8s %8s %8s\n", "sweep", "scene", "bad1%", "bad2%",
               "density%", "mae", "disc_b2%", "ms", "valid");
   for (const std::string& sv : sweep_values) {
-    es::MatcherParams m = mp;
-    es::PostFilterParams f = fp;
+    es::PipelineParams swept = pp;
     if (!sweep_key.empty()) {
-      const std::string err = setField(m, f, sweep_key, sv);
+      const std::string err = es::setPipelineParam(swept, sweep_key, sv);
       if (!err.empty()) {
         std::cerr << err << "\n";
         return 2;
@@ -316,21 +309,22 @@ int main(int argc, char** argv) {
     double worst_b2 = 0, sum_b2 = 0, min_dens = 1;
     for (size_t k = 0; k < loaded.size(); ++k) {
       const es::MiddleburyScene& s = loaded[k];
-      es::MatcherParams ms = m;
-      ms.min_disparity = min_disparity[k];
-      if (!fixed_max) ms.max_disparity = s.max_disp;
-      std::string err = ms.validate();
-      if (err.empty()) err = f.validate();
+      es::PipelineParams ps = swept;
+      ps.matcher.min_disparity = min_disparity[k];
+      if (!fixed_max) ps.matcher.max_disparity = s.max_disp;
+      const es::MatcherParams& ms = ps.matcher;
+      const std::string err = ps.validate();
       if (!err.empty()) {
         std::cerr << err << "\n";
         return 2;
       }
-      es::RobustMatcher matcher(ms, f);
       es::MatchResult r;
-      const auto t0 = std::chrono::steady_clock::now();
-      matcher.compute(s.left, s.right, r);
-      const double ms_taken =
-          std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
+      double ms_taken = 0.0;
+      std::string error;
+      if (!runPipeline(ps, s, r, ms_taken, error)) {
+        std::cerr << s.name << ": " << error << "\n";
+        return 1;
+      }
       const es::DisparityScore sc = es::scoreDisparity(r.disparity, s.gt, s.nonocc);
       const es::DisparityScore dc = es::scoreDisparity(r.disparity, s.gt, s.disc);
       std::printf("%-10s %-8s %7.2f %7.2f %8.1f %7.3f %8.2f %8.1f %8lld\n",

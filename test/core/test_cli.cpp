@@ -168,8 +168,8 @@ TEST_F(CliTest, SequenceModeWritesEachFrameAndUsesPriorsUnlessTold) {
   EXPECT_FALSE(exists("sd_004.pfm"));
   std::string json = readText(dir_ + "/seq.json");
   EXPECT_EQ(jsonNumber(json, "frames_processed"), 3);
-  // Every frame: the first one narrowed around a coarse estimate of itself (coarse_seed).
-  EXPECT_EQ(countOf(json, "\"priors_used\": true"), 3);
+  // The frames after the first (which has no prior and searches the full range).
+  EXPECT_EQ(countOf(json, "\"priors_used\": true"), 2);
   EXPECT_GT(jsonNumber(json, "prior_hits"), 0);
   EXPECT_NE(json.find("\"central_share_updated_within\""), std::string::npos);
 
@@ -181,6 +181,19 @@ TEST_F(CliTest, SequenceModeWritesEachFrameAndUsesPriorsUnlessTold) {
   EXPECT_EQ(jsonNumber(json, "frames_processed"), 2);
   EXPECT_EQ(countOf(json, "\"priors_used\": true"), 0);
   EXPECT_EQ(jsonNumber(json, "index"), 2);
+}
+
+// A single pair with the defaults (priors on) is the first frame of a stream: it searches the full
+// range, so its disparity is the full search's (priors off) to the bit.
+TEST_F(CliTest, ASinglePairWithTheDefaultsIsAFullSearch) {
+  RunResult r = run("--left left.png --right right.png --max-disparity 31 --out-disparity d1.pfm");
+  ASSERT_EQ(r.status, 0) << r.err;
+  r = run("--left left.png --right right.png --max-disparity 31 --set temporal.enabled=false "
+          "--out-disparity d0.pfm");
+  ASSERT_EQ(r.status, 0) << r.err;
+  const std::string with_priors = readText(dir_ + "/d1.pfm");
+  ASSERT_GT(with_priors.size(), 1000u);
+  EXPECT_TRUE(with_priors == readText(dir_ + "/d0.pfm"));
 }
 
 TEST_F(CliTest, UnreadableInputsExitWithOneAndNameTheFile) {

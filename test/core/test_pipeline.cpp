@@ -90,8 +90,9 @@ class PipelineTest : public ::testing::Test {
 
 TEST_F(PipelineTest, PassThroughGivesExactlyTheMatchersOutput) {
   const SyntheticScene s = smallScene();
+  // Priors on (the shipped preset): the first frame of a stream has none and searches the full
+  // range, so its output is exactly the matcher's.
   PipelineParams params = passThroughParams();
-  params.temporal.coarse_seed = false;  // the first frame then searches the full range
   Pipeline pipeline(params);
   PipelineOutput out;
   std::string error;
@@ -105,7 +106,7 @@ TEST_F(PipelineTest, PassThroughGivesExactlyTheMatchersOutput) {
   EXPECT_EQ(out.left_rect_gray.size(), s.left.size());
   EXPECT_GE(out.total_ms, out.match_ms);
   EXPECT_GT(out.match_ms, 0.0);
-  EXPECT_FALSE(out.priors_used);  // first frame without a coarse seed: nothing to narrow with
+  EXPECT_FALSE(out.priors_used);  // first frame: nothing to narrow with
 }
 
 TEST_F(PipelineTest, BadInputReturnsFalseWithAMessageAndThePipelineStaysUsable) {
@@ -175,43 +176,35 @@ TEST_F(PipelineTest, PriorsNarrowTheNextFrameAndResetWhenTimeGoesBackOrJumps) {
   PipelineOutput out;
   std::string error;
   ASSERT_TRUE(pipeline.process(monoInput(s, 10.0), out, &error)) << error;
-  // No prior yet: a coarse estimate of this very frame seeds them (TemporalParams::coarse_seed).
-  EXPECT_TRUE(out.prior_stats.seeded);
+  EXPECT_FALSE(out.priors_used);  // no prior yet: the full range
+  const cv::Mat full = out.match.disparity.clone();
   ASSERT_TRUE(pipeline.process(monoInput(s, 10.04), out, &error)) << error;
-  EXPECT_TRUE(out.priors_used);
-  EXPECT_FALSE(out.prior_stats.seeded);  // the previous frame's disparities
+  EXPECT_TRUE(out.priors_used);  // the previous frame's disparities
   EXPECT_FALSE(out.priors_reset);
   EXPECT_GT(out.prior_stats.narrowed_pixels, 0);
   EXPECT_GT(out.prior_stats.prior_hits, 0);
 
-  // After a reset the old priors are gone: the frame's own coarse estimate seeds new ones.
+  // After a reset the old priors are gone: the frame searches the full range again, and its
+  // output is the first frame's exactly.
   ASSERT_TRUE(pipeline.process(monoInput(s, 9.0), out, &error)) << error;  // a looping bag
   EXPECT_TRUE(out.priors_reset);
   EXPECT_FALSE(out.reset_reason.empty());
-  EXPECT_TRUE(out.prior_stats.seeded);
+  EXPECT_FALSE(out.priors_used);
+  EXPECT_TRUE(sameDisparity(out.match.disparity, full));
 
   ASSERT_TRUE(pipeline.process(monoInput(s, 9.04), out, &error)) << error;
   EXPECT_TRUE(out.priors_used);
-  EXPECT_FALSE(out.prior_stats.seeded);
   ASSERT_TRUE(pipeline.process(monoInput(s, 60.0), out, &error)) << error;  // a long gap
   EXPECT_TRUE(out.priors_reset);
-  EXPECT_TRUE(out.prior_stats.seeded);
+  EXPECT_FALSE(out.priors_used);
+  EXPECT_TRUE(sameDisparity(out.match.disparity, full));
 
   ASSERT_TRUE(pipeline.process(monoInput(s, 60.04), out, &error)) << error;
   EXPECT_TRUE(out.priors_used);
-  EXPECT_FALSE(out.prior_stats.seeded);
   pipeline.reset();  // asked for by the caller (the nodelet on a reconfigure, for instance)
   ASSERT_TRUE(pipeline.process(monoInput(s, 60.08), out, &error)) << error;
-  EXPECT_TRUE(out.prior_stats.seeded);
-
-  // Without the coarse seed, a frame without priors searches the full range.
-  PipelineParams params = passThroughParams();
-  params.temporal.coarse_seed = false;
-  pipeline.setParams(params);
-  pipeline.reset();
-  ASSERT_TRUE(pipeline.process(monoInput(s, 60.12), out, &error)) << error;
   EXPECT_FALSE(out.priors_used);
-  EXPECT_FALSE(out.prior_stats.seeded);
+  EXPECT_TRUE(sameDisparity(out.match.disparity, full));
 }
 
 // A scene change (a cut, a jump of the endoscope): the previous frame's priors point at the wrong
@@ -226,7 +219,6 @@ TEST_F(PipelineTest, PriorsFromAnotherSceneAreRejectedAndTheFrameIsMatchedInFull
   pb.base_disparity_px = 24.0;  // far outside +-4 px of scene a's 10 px
   const SyntheticScene b = makeSyntheticScene(pb);
   PipelineParams params = passThroughParams();
-  params.temporal.coarse_seed = false;
   Pipeline pipeline(params);
   PipelineOutput out;
   std::string error;
@@ -241,38 +233,11 @@ TEST_F(PipelineTest, PriorsFromAnotherSceneAreRejectedAndTheFrameIsMatchedInFull
   MatchResult full;
   matcher.compute(b.left, b.right, full);
   EXPECT_TRUE(sameDisparity(out.match.disparity, full.disparity));
-
-  // With the coarse seed (the shipped preset) the frame is matched again from a coarse estimate
-  // of itself, not over the full range: narrowed ranges around the new scene's disparities.
-  params.temporal.coarse_seed = true;
-  Pipeline seeded(params);
-  for (int i = 0; i < 3; ++i) {
-    ASSERT_TRUE(seeded.process(monoInput(a, 0.04 * i), out, &error)) << error;
-  }
-  ASSERT_TRUE(seeded.process(monoInput(b, 0.12), out, &error)) << error;
-  EXPECT_TRUE(out.priors_rejected);
-  EXPECT_TRUE(out.priors_used);
-  EXPECT_TRUE(out.prior_stats.seeded);
-  int scored = 0, bad = 0;
-  for (int y = 0; y < b.disparity.rows; ++y) {
-    for (int x = 0; x < b.disparity.cols; ++x) {
-      const float d = out.match.disparity.at<float>(y, x);
-      if (std::isnan(d) || b.occluded.at<uint8_t>(y, x)) continue;
-      ++scored;
-      bad += std::abs(d - b.disparity.at<float>(y, x)) > 2.0f;
-    }
-  }
-  // Measured: density 73.8% against the full search's 76.6%, and no pixel off by more than 2 px
-  // (of 14 168 scored). Allowed: 5 points of density, 0.5% bad2 (the matcher's own tests allow
-  // about that on these scenes).
-  EXPECT_GT(out.match.stats.density(), full.stats.density() - 0.05);
-  EXPECT_LE(bad, scored / 200) << scored;
 }
 
 TEST_F(PipelineTest, ChangingTheDisparityRangeResetsPriorsAndDisablingThemSearchesFully) {
   const SyntheticScene s = smallScene();
   PipelineParams params = passThroughParams();
-  params.temporal.coarse_seed = false;  // a frame without priors searches the full range
   Pipeline pipeline(params);
   PipelineOutput out;
   std::string error;
@@ -402,7 +367,7 @@ TEST_F(PipelineTest, CalibratedCloudIsMetricAndANewCalibrationResetsPriors) {
   in.stamp_s = 0.12;
   ASSERT_TRUE(pipeline.process(in, out, &error)) << error;
   EXPECT_TRUE(out.priors_reset);
-  EXPECT_TRUE(out.prior_stats.seeded);  // the old priors are gone: a coarse estimate seeds new ones
+  EXPECT_FALSE(out.priors_used);  // the old priors are gone: the full range
 
   StereoCalibration broken = scene.calibration();
   broken.left.K(0, 0) = 0.0;
@@ -536,27 +501,6 @@ TEST_F(PipelineTest, BackgroundQualityMeasurementGivesTheInlineFigureLater) {
   EXPECT_EQ(cv::norm(r1, r2, cv::NORM_INF), 0.0);
 }
 
-TEST(CoarseSeed, HalfRangeAndUpsamplingByTwo) {
-  MatcherParams mp;
-  mp.min_disparity = -5;
-  mp.max_disparity = 127;
-  const MatcherParams c = coarseMatcherParams(mp);
-  EXPECT_EQ(c.min_disparity, -3);  // floor(-5 / 2)
-  EXPECT_EQ(c.max_disparity, 64);  // ceil(127 / 2)
-  EXPECT_EQ(c.window_min_px, mp.window_min_px);
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  cv::Mat half = (cv::Mat_<float>(2, 2) << 1.5f, nan, 3.0f, 4.25f);
-  cv::Mat full;
-  upsampleDisparityX2(half, cv::Size(3, 4), full);
-  ASSERT_EQ(full.size(), cv::Size(3, 4));
-  EXPECT_EQ(full.at<float>(0, 0), 3.0f);
-  EXPECT_EQ(full.at<float>(1, 1), 3.0f);
-  EXPECT_TRUE(std::isnan(full.at<float>(1, 2)));
-  EXPECT_EQ(full.at<float>(2, 0), 6.0f);
-  EXPECT_EQ(full.at<float>(3, 2), 8.5f);
-  EXPECT_THROW(upsampleDisparityX2(half, cv::Size(5, 4), full), std::invalid_argument);
-}
-
 // Without extra passes the temporal matcher is one RobustMatcher::compute() with the same range,
 // to the bit: the passes match, and the depth-edge measure and the post-filter then run as the
 // matcher runs them. With fallback_larger_windows the matcher call is the one with
@@ -564,7 +508,6 @@ TEST(CoarseSeed, HalfRangeAndUpsamplingByTwo) {
 TEST_F(PipelineTest, TemporalMatcherWithoutASecondPassEqualsOneMatcherCall) {
   const SyntheticScene s = lowTextureScene();
   PipelineParams p = passThroughParams();
-  p.temporal.coarse_seed = false;
   p.temporal.fallback_max_share = 0.0;
   for (const bool larger : {false, true}) {
     p.temporal.fallback_larger_windows = larger;
@@ -610,7 +553,6 @@ TEST_F(PipelineTest, FullRangeFallbackSearchesTheNarrowedMissesAgainInTheSameFra
   const SyntheticScene s = smallScene();
   PipelineParams p = passThroughParams();
   p.matcher.min_ncc_narrowed = 1.0;
-  p.temporal.coarse_seed = false;
   p.temporal.fallback_max_share = 1.0;
   p.temporal.prior_neighbourhood_px = 16;
   p.temporal.min_prior_hit_share = 0.0;
@@ -649,43 +591,6 @@ TEST_F(PipelineTest, FullRangeFallbackSearchesTheNarrowedMissesAgainInTheSameFra
   }
 }
 
-// The first frame starts from a coarse estimate: most pixels search a narrowed range, and the
-// result is close to the full search's, with no more errors.
-TEST_F(PipelineTest, TheFirstFrameSearchesNarrowedRangesAroundACoarseEstimate) {
-  const SyntheticScene s = lowTextureScene();
-  PipelineParams p = passThroughParams();
-  Pipeline pipeline(p);
-  PipelineOutput out;
-  std::string error;
-  ASSERT_TRUE(pipeline.process(monoInput(s, 0.0), out, &error)) << error;
-  EXPECT_TRUE(out.prior_stats.seeded);
-  EXPECT_TRUE(out.priors_used);
-  RobustMatcher matcher(p.matcher, p.filter);
-  MatchResult full;
-  matcher.compute(s.left, s.right, full);
-  const double narrowed_share = double(out.prior_stats.narrowed_pixels) / double(s.left.total());
-  auto bad2 = [&](const cv::Mat& d) {
-    int scored = 0, bad = 0;
-    for (int y = 0; y < d.rows; ++y) {
-      for (int x = 0; x < d.cols; ++x) {
-        const float v = d.at<float>(y, x);
-        if (std::isnan(v) || s.occluded.at<uint8_t>(y, x)) continue;
-        ++scored;
-        bad += std::abs(v - s.disparity.at<float>(y, x)) > 2.0f;
-      }
-    }
-    return double(bad) / std::max(1, scored);
-  };
-  // Measured with the default 9 px first window: density 78.4% against the full search's 81.6%
-  // (3.2 points; 2.0 with a 7 px first window, whose larger share of border pixels weighs more
-  // on this 160 x 120 scene); bad2 0 for both. On the first real in-vivo frame the gap is 5.6
-  // points with the 9 px window, 10.5 with 7 px (endo_stereo_cli --first 1 --count 1, with and
-  // without --no-priors). Allowed: 75% narrowed, 4 points of density, 0.2% more bad2.
-  EXPECT_GT(narrowed_share, 0.75);
-  EXPECT_GT(out.match.stats.density(), full.stats.density() - 0.04);
-  EXPECT_LE(bad2(out.match.disparity), bad2(full.disparity) + 0.002);
-}
-
 // The output does not depend on the number of threads, with every pass on.
 TEST_F(PipelineTest, TemporalPassesGiveTheSameOutputForOneAndTwoThreads) {
   const SyntheticScene a = lowTextureScene();
@@ -699,7 +604,7 @@ TEST_F(PipelineTest, TemporalPassesGiveTheSameOutputForOneAndTwoThreads) {
     PipelineOutput out;
     std::string error;
     for (int f = 0; f < 4; ++f) {
-      // A cut after two frames: a rejection and a second seed too.
+      // A cut after two frames: a rejection and a full search again.
       ASSERT_TRUE(pipeline.process(monoInput(f < 2 ? a : b, 0.04 * f), out, &error)) << error;
       if (threads == 1) {
         first[f] = out.match.disparity.clone();

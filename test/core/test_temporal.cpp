@@ -877,29 +877,6 @@ TEST(TemporalPrior, SameFrameFallbackTakesTheNarrowedMissesInTurnWithinTheBudget
   EXPECT_FALSE(picked(0, 1));
 }
 
-TEST(TemporalPrior, ASeedGivesFreshPriorsForTheFrameAboutToBeMatched) {
-  TemporalParams p = plainParams();
-  p.prior_neighbourhood_px = 0;
-  TemporalPrior prior(p);
-  const cv::Size size(12, 10);
-  cv::Mat seed = constantDisparity(size, 40.0f);
-  seed.colRange(0, 4).setTo(kNaN);
-  prior.seed(seed, 0, 63);
-  SearchRange range;
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_TRUE(prior.stats().seeded);
-  EXPECT_EQ(prior.stats().narrowed_pixels, 8 * size.height);
-  EXPECT_EQ(range.lo.at<int16_t>(5, 6), 36);
-  EXPECT_EQ(range.hi.at<int16_t>(5, 6), 44);
-  EXPECT_EQ(range.lo.at<int16_t>(5, 1), 0);  // no seed value: the full range
-  EXPECT_EQ(range.hi.at<int16_t>(5, 1), 63);
-  EXPECT_EQ(prior.priorAge().at<uint16_t>(5, 6), 0);
-  EXPECT_EQ(prior.priorAge().at<uint16_t>(5, 1), kAgeNone);
-  prior.update(seed);
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_FALSE(prior.stats().seeded);  // only the frame it was made for
-}
-
 }  // namespace
 }  // namespace endo_stereo
 

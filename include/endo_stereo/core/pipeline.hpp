@@ -81,8 +81,8 @@ struct PipelineOutput {
   bool priors_used = false;    ///< this frame's output comes from narrowed ranges (with the
                                ///< same-frame fallback for their misses, temporal_matching.hpp)
   /// The narrowed search found too few matches (TemporalParams::min_prior_hit_share: a scene
-  /// change), so the priors were dropped and the frame matched again: from a coarse estimate of
-  /// the frame (TemporalParams::coarse_seed) or over the full range (match_ms covers all passes).
+  /// change), so the priors were dropped and the frame matched again over the full range
+  /// (match_ms covers both passes).
   bool priors_rejected = false;
   bool priors_reset = false;   ///< the temporal state was reset before this frame (and why below)
   std::string reset_reason;

@@ -12,8 +12,8 @@
  *   same frame (fallback_larger_windows), and optionally the misses are searched again over the
  *   full range in the same frame, as far as a budget allows (fallback_max_share); TemporalMatcher
  *   (temporal_matching.hpp) runs these passes;
- * - a frame without usable priors (the first one, after a reset or a cut) is seeded by a coarse
- *   estimate at half resolution (coarse_seed), so it searches narrowed ranges too;
+ * - a frame without usable priors (the first one, after a reset or a cut) searches the full range,
+ *   so its output is exactly a full search's;
  * - a pixel without a prior searches the full range in one frame of full_range_period_frames (row
  *   stripes take turns), so no pixel goes longer than that without a search;
  * - a pixel whose narrowed search keeps failing falls back to the full range; when the share of
@@ -35,9 +35,9 @@
  *                                       mp.min_disparity, mp.max_disparity, left};
  *   std::string reset_reason;
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
- *   // TemporalMatcher::compute(): the coarse seed (seedPriors()) when range is nullptr, the
- *   // narrowed pass, rejectPriors() (a cut: the frame again), fallbackRange() (misses again over
- *   // the full range), the post-filter.
+ *   // TemporalMatcher::compute(): the pass with range (nullptr = the full range),
+ *   // rejectPriors() (a cut: the frame again), fallbackRange() (misses again over the full
+ *   // range), the post-filter.
  *   temporal_matcher.compute(left, right, temporal, info, range, match);
  *   temporal.endFrame(match.disparity, want_fused, want_coverage);
  *   // temporal.prior().stats(), temporal.fusion().disparity() / age(),
@@ -114,7 +114,7 @@ struct TemporalParams {
   /// Same-frame fallback in the narrowed range: a pixel whose narrowed search finds nothing with
   /// the first window goes on with the larger ones (up to matcher.window_max_px) in the same
   /// matcher pass, as a full-range search would; TemporalMatcher then lifts
-  /// matcher.window_max_narrowed_px for the pass (not on a frame seeded by coarse_seed). On the in-vivo video every narrowed miss that a
+  /// matcher.window_max_narrowed_px for the pass. On the in-vivo video every narrowed miss that a
   /// full search accepts is accepted inside the narrowed range, with a window wider than the first
   /// (docs/temporal_results.md), so this is what brings the priors' density up to the full
   /// search's. false = the matcher's cap applies.
@@ -129,21 +129,15 @@ struct TemporalParams {
   /// in-vivo video it found nothing that the larger windows did not, at several times their cost,
   /// docs/temporal_results.md).
   double fallback_max_share = 0.0;
-  /// When a frame has no usable prior (the first frame, after a reset or a scene change), a coarse
-  /// estimate at half resolution over half the range (a quarter of the pixels, half of the
-  /// disparities: about an eighth of a full search) seeds the priors, doubled and upsampled, and
-  /// the frame searches narrowed ranges around them: the first frame costs about what the
-  /// following ones do instead of a full search (TemporalMatcher).
-  bool coarse_seed = true;
   /// Scene change: when the share of a frame's narrowed searches that find a valid disparity
   /// falls below this fraction of the previous frame's share, the priors are dropped at once (a
   /// cut, a jump of the endoscope): TemporalTracker::rejectPriors() then asks for the frame to be
-  /// matched again (TemporalMatcher: from a coarse estimate, or over the full range), or else the
+  /// matched again over the full range (TemporalMatcher), or else the
   /// next frame searches it. Relative, because the share depends on the scene: 91-93% on the
   /// generated sequence, 37-70% on the in-vivo video (median 53%, no frame below 0.78 x the
   /// previous one over frames 1-150), and a cut between two generated scenes drops it to 27%
   /// (0.30 x). Judged only when at least 5% of the pixels were narrowed and the previous frame's
-  /// share is known (not on the first narrowed frame after a reset, a seed or a scene change).
+  /// share is known (not on the first narrowed frame after a reset or a scene change).
   /// In [0, 1]; 0 = off.
   double min_prior_hit_share = 0.5;
   /// Forget the temporal state when the stamp moves forward by more than this, s. > 0.
@@ -217,7 +211,6 @@ struct TemporalPriorStats {
   int64_t same_frame_fallback_pixels = 0;  ///< narrowed misses searched again over the full range
                                            ///< in the same frame (selectFallback())
   int64_t same_frame_fallback_hits = 0;    ///< of those: valid in the frame's final disparity
-  bool seeded = false;            ///< the priors of this frame came from a coarse estimate (seed())
   double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
 };
 
@@ -264,14 +257,6 @@ class TemporalPrior {
   void update(const cv::Mat& disparity);
 
   /**
-   * Start the priors from a coarse estimate of the frame about to be matched (CV_32FC1 of the
-   * range's size, px at full resolution, NaN = none): every finite value becomes a fresh prior
-   * (age 0, no failures), everything else none. Resets the state first (like a size change).
-   * Call buildRange() next.
-   */
-  void seed(const cv::Mat& disparity, int min_disparity, int max_disparity);
-
-  /**
    * Same-frame fallback, between matching the latest buildRange()'s range and update(): picks the
    * narrowed pixels that @p disparity (the narrowed pass, CV_32FC1, NaN invalid) gives no valid
    * value, at most @p budget of them (rows taken in turn from where the previous call stopped),
@@ -291,7 +276,7 @@ class TemporalPrior {
   /// The scene-change test on counts: @p hits of @p judged narrowed searches, @p total pixels.
   bool isSceneChange(int64_t hits, int64_t judged, int64_t total) const;
   /// The hit share of the latest update() that was judged and not a scene change; -1 = none yet
-  /// (after a reset, a seed or a scene change).
+  /// (after a reset or a scene change).
   double referenceHitShare() const { return reference_hit_share_; }
   /// Drop every prior now (a scene change); the next update() treats all pixels as searched over
   /// the full range. Sets stats().scene_change.
@@ -315,7 +300,6 @@ class TemporalPrior {
                             // 3 narrowed, missed and searched again over the full range
   int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
   int fallback_row_ = 0;    // the row where the next selectFallback() starts
-  bool seeded_ = false;     // seed() since the latest buildRange()
   double reference_hit_share_ = -1.0;  // see referenceHitShare()
   cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
   cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
@@ -426,23 +410,15 @@ class TemporalTracker {
    * Optional, between matching and endFrame(): did the priors describe another scene (a cut, a
    * jump of the endoscope)? When the share of the narrowed searches that found a disparity fell
    * below min_prior_hit_share x the previous frame's share, the priors and fused disparities are
-   * dropped at once and true is returned: match the frame again (from seedPriors(), or over the
-   * full range with range = nullptr) and pass that result to endFrame().
+   * dropped at once and true is returned: match the frame again over the full range (range =
+   * nullptr) and pass that result to endFrame().
    * Without this call the same test runs inside endFrame() and only the next frame searches the
    * full range (this frame's output keeps what the wrong priors let through).
    */
   bool rejectPriors(const cv::Mat& disparity);
 
   /**
-   * Optional, when beginFrame() returned nullptr and TemporalParams::coarse_seed is on: seed the
-   * priors from a coarse estimate of this frame (TemporalPrior::seed(); @p info as given to
-   * beginFrame()). @return the narrowed range to match with, or nullptr (nothing usable: full
-   * range).
-   */
-  const SearchRange* seedPriors(const cv::Mat& coarse_disparity, const TemporalFrameInfo& info);
-
-  /**
-   * Optional, after matching with the range of beginFrame() / seedPriors() (and rejectPriors()):
+   * Optional, after matching with the range of beginFrame() (and rejectPriors()):
    * the pixels whose narrowed search missed, to be searched again over the full range in this
    * frame (TemporalParams::fallback_max_share; TemporalPrior::selectFallback()). Match them with
    * the returned range (every other pixel has an empty range), merge the results into the

@@ -4,17 +4,12 @@
  * and 5.3): priors that add to the full search's result and never take from it.
  *
  * Per frame, between TemporalTracker::beginFrame() and endFrame():
- * 1. no usable prior (the first frame, after a reset or a scene change) and
- *    TemporalParams::coarse_seed: a coarse estimate at half resolution over half the range (both
- *    views downsampled by 2, INTER_AREA), doubled and upsampled (nearest), seeds the priors
- *    (TemporalTracker::seedPriors()), so the frame searches narrowed ranges, not the full one;
+ 1. no usable prior (the first frame, after a reset or a scene change): the full range, so the
+ *    frame's output is exactly a full search's;
  * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred); with
  *    TemporalParams::fallback_larger_windows a narrowed search that finds nothing with the first
- *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted), except on
- *    a seeded frame (a miss there is more often a coarse value off by more than the range, and
- *    that frame must cost no more than the ones after it);
- * 3. a scene change (TemporalTracker::rejectPriors()): the frame again, seeded anew when it was not
- *    seeded already, else over the full range;
+ *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted);
+ * 3. a scene change (TemporalTracker::rejectPriors()): the frame again over the full range;
  * 4. the same-frame fallback over the full range (TemporalParams::fallback_max_share): the pixels
  *    whose narrowed search still missed, searched again over the full range (a second matcher
  *    pass over those pixels only) and merged in; the depth-edge measure judges them on the merged
@@ -54,22 +49,10 @@ namespace endo_stereo {
 struct TemporalMatchReport {
   bool priors_used = false;      ///< the output comes from narrowed ranges (with any fallback)
   bool priors_rejected = false;  ///< a scene change: the frame was matched again
-  bool seeded = false;           ///< a coarse estimate seeded this frame's priors
   int64_t fallback_pixels = 0;   ///< narrowed misses searched again over the full range
   int64_t fallback_valid = 0;    ///< of those, valid after the second pass (before post-filter)
-  double coarse_ms = 0.0;        ///< the coarse estimate (downsampling, matching, upsampling)
   double fallback_ms = 0.0;      ///< the second pass and the merge
 };
-
-/// The coarse matcher's parameters for @p full: half the disparity range (min rounded down, max
-/// up), everything else as given.
-MatcherParams coarseMatcherParams(const MatcherParams& full);
-
-/**
- * Upsample a half-resolution disparity (CV_32FC1, NaN invalid) to @p size: nearest neighbour,
- * values doubled; NaN stays NaN. Pixel (x, y) takes (x / 2, y / 2).
- */
-void upsampleDisparityX2(const cv::Mat& half, cv::Size size, cv::Mat& full);
 
 /// RobustMatcher's post-filter (outlier removal, hole filling, confidence of filled pixels, the
 /// per-code counters and the valid count) on a result matched with the post-filter off.
@@ -95,16 +78,11 @@ class TemporalMatcher {
                TemporalMatchReport* report = nullptr);
 
  private:
-  /// The coarse estimate of the pair, upsampled into seed_.
-  void coarseEstimate(const cv::Mat& left, const cv::Mat& right);
-
   MatcherParams matcher_params_;
   PostFilterParams filter_params_;
   RobustMatcher matcher_;  // the passes only match: edge test and post-filter run on the result
   bool larger_windows_ = false;  // matcher_ tries every window size in narrowed ranges
-  RobustMatcher coarse_;   // half resolution, half range, post-filter on
-  MatchResult second_, merged_, coarse_result_;
-  cv::Mat left_half_, right_half_, seed_;
+  MatchResult second_, merged_;
   cv::Mat window_idx_;   // the merged map's accepting window indices (depth-edge measure)
   cv::Mat edge_tmp_[5];  // the depth-edge measure's scratch
 };
