@@ -279,8 +279,6 @@ const std::vector<Entry>& table() {
                       &TemporalParams::refresh_period_frames));
     t.push_back(field("temporal", "full_range_period_frames", &PP::temporal,
                       &TemporalParams::full_range_period_frames));
-    t.push_back(field("temporal", "fallback_max_share", &PP::temporal,
-                      &TemporalParams::fallback_max_share));
     t.push_back(field("temporal", "fallback_larger_windows", &PP::temporal,
                       &TemporalParams::fallback_larger_windows));
     t.push_back(field("temporal", "min_prior_hit_share", &PP::temporal,

@@ -125,8 +125,6 @@ std::string TemporalParams::validate() const {
     return rangeMessage("refresh_period_frames", "[0, 1000]", refresh_period_frames);
   if (full_range_period_frames < 1 || full_range_period_frames > 1000)
     return rangeMessage("full_range_period_frames", "[1, 1000]", full_range_period_frames);
-  if (!(fallback_max_share >= 0.0 && fallback_max_share <= 1.0))
-    return rangeMessage("fallback_max_share", "[0, 1]", fallback_max_share);
   if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))
     return rangeMessage("min_prior_hit_share", "[0, 1]", min_prior_hit_share);
   if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
@@ -184,71 +182,8 @@ void TemporalPrior::reset() {
   failures_.release();
   narrowed_.release();
   frame_count_ = 0;
-  fallback_row_ = 0;
   reference_hit_share_ = -1.0;
   stats_ = TemporalPriorStats();
-}
-
-int64_t TemporalPrior::selectFallback(const cv::Mat& disparity, int64_t budget,
-                                      SearchRange& range) {
-  checkDisparity(disparity, "TemporalPrior::selectFallback");
-  if (narrowed_.empty() || disparity.size() != narrowed_.size() || budget <= 0) return 0;
-  const int rows = disparity.rows, cols = disparity.cols;
-  // Misses per row (in parallel), then rows taken in turn from fallback_row_ while the budget
-  // lasts (serial, cheap): the same rows for any thread count.
-  std::vector<int> row_misses(size_t(rows), 0);
-  forRowStripes<1>(rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
-    for (int y = y_begin; y < y_end; ++y) {
-      const float* d = disparity.ptr<float>(y);
-      const uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
-      int n = 0;
-      for (int x = 0; x < cols; ++x) n += (narrowed[x] == 1) & !finite(d[x]);
-      row_misses[size_t(y)] = n;
-    }
-  });
-  // take[y]: how many of row y's misses (from the left) are searched again.
-  std::vector<int> take(size_t(rows), 0);
-  int64_t picked = 0;
-  const int start = fallback_row_ % rows;
-  int next = 0;  // every miss fits: the next frame starts at row 0 again
-  for (int i = 0; i < rows; ++i) {
-    const int y = (start + i) % rows;
-    const int n = row_misses[size_t(y)];
-    const int64_t left = budget - picked;
-    if (n > left) {
-      // The budget ends in this row: its remaining misses have the next frame's first turn.
-      take[size_t(y)] = int(left);
-      picked += left;
-      next = y;
-      break;
-    }
-    take[size_t(y)] = n;
-    picked += n;
-  }
-  fallback_row_ = next;
-  if (picked == 0) return 0;
-  range.lo.create(disparity.size(), CV_16SC1);
-  range.hi.create(disparity.size(), CV_16SC1);
-  const int16_t none_lo = int16_t(max_disparity_ + 1), none_hi = int16_t(min_disparity_ - 1);
-  const int16_t full_lo = int16_t(min_disparity_), full_hi = int16_t(max_disparity_);
-  forRowStripes<1>(rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
-    for (int yy = y_begin; yy < y_end; ++yy) {
-      const float* d = disparity.ptr<float>(yy);
-      uint8_t* narrowed = narrowed_.ptr<uint8_t>(yy);
-      int16_t* lo = range.lo.ptr<int16_t>(yy);
-      int16_t* hi = range.hi.ptr<int16_t>(yy);
-      int quota = take[size_t(yy)];
-      for (int x = 0; x < cols; ++x) {
-        const bool pick = (quota > 0) & (narrowed[x] == 1) & !finite(d[x]);
-        quota -= pick;
-        lo[x] = pick ? full_lo : none_lo;
-        hi[x] = pick ? full_hi : none_hi;
-        narrowed[x] = pick ? uint8_t(3) : narrowed[x];
-      }
-    }
-  });
-  stats_.same_frame_fallback_pixels += picked;
-  return picked;
 }
 
 bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_disparity,
@@ -562,8 +497,8 @@ void TemporalPrior::update(const cv::Mat& disparity) {
   const bool have_narrowed = !narrowed_.empty() && narrowed_.size() == size_;
   if (!have_narrowed) zero_row_.assign(size_.width, 0);
   const float nan = std::numeric_limits<float>::quiet_NaN();
-  const std::array<int64_t, 3> judged_counts =
-      forRowStripes<3>(size_.height, [&](int y_begin, int y_end, std::array<int64_t, 3>& c) {
+  const std::array<int64_t, 2> judged_counts =
+      forRowStripes<2>(size_.height, [&](int y_begin, int y_end, std::array<int64_t, 2>& c) {
         for (int y = y_begin; y < y_end; ++y) {
           const float* in = disparity.ptr<float>(y);
           float* d = last_disparity_.ptr<float>(y);
@@ -571,12 +506,12 @@ void TemporalPrior::update(const cv::Mat& disparity) {
           uint8_t* fail = failures_.ptr<uint8_t>(y);
           // The narrowed flags are consumed here and cleared in the same pass.
           uint8_t* narrowed = have_narrowed ? narrowed_.ptr<uint8_t>(y) : zero_row_.data();
-          int row_hits = 0, row_misses = 0, row_retry_hits = 0;
+          int row_hits = 0, row_misses = 0;
           int x = 0;
 #if CV_SIMD128
           {
             const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
-            const cv::v_uint16x8 v_two = cv::v_setall_u16(2), v_three = cv::v_setall_u16(3);
+            const cv::v_uint16x8 v_two = cv::v_setall_u16(2);
             const cv::v_uint16x8 v_none = cv::v_setall_u16(kAgeNone);
             const cv::v_float32x4 v_nan = cv::v_setall_f32(nan);
             for (; x <= size_.width - 8; x += 8) {
@@ -584,7 +519,6 @@ void TemporalPrior::update(const cv::Mat& disparity) {
               const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
               const cv::v_uint16x8 flag = cv::v_load_expand(narrowed + x);
               const cv::v_uint16x8 nar = flag == v_one;
-              const cv::v_uint16x8 retried = flag == v_three;
               const cv::v_uint16x8 keep = nar | (flag == v_two);  // narrowed or deferred
               widenMask(keep, &nar0, &nar1);
               const cv::v_float32x4 kept0 = cv::v_select(nar0, cv::v_load(d + x), v_nan);
@@ -600,18 +534,15 @@ void TemporalPrior::update(const cv::Mat& disparity) {
               cv::v_store_low(fail + x, cv::v_pack(failed, failed));
               cv::v_store_low(narrowed + x, cv::v_setzero_u8());
               row_hits += countMask(ok & nar);
-              row_misses += countMask((~ok & nar) | retried);
-              row_retry_hits += countMask(ok & retried);
+              row_misses += countMask(~ok & nar);
             }
           }
 #endif
           for (; x < size_.width; ++x) {
             const bool valid = finite(in[x]);
             const bool was_narrowed = narrowed[x] == 1;
-            const bool retried = narrowed[x] == 3;
             const bool keep = was_narrowed | (narrowed[x] == 2);
-            // Invalid after a full-range search (also the same-frame fallback after a narrowed
-            // miss): whatever the prior said is not confirmed, so it is dropped (a wrong prior
+            // Invalid after a full-range search: whatever the prior said is not confirmed, so it is dropped (a wrong prior
             // cannot outlive a refresh). Invalid after a narrowed search only: the prior ages and
             // counts a failure. Not searched (deferred): the prior ages.
             const float kept = keep ? d[x] : nan;
@@ -621,19 +552,16 @@ void TemporalPrior::update(const cv::Mat& disparity) {
             age[x] = valid ? uint16_t(0) : aged;
             fail[x] = valid ? uint8_t(0) : failed;
             row_hits += valid & was_narrowed;
-            row_misses += (!valid & was_narrowed) | retried;
-            row_retry_hits += valid & retried;
+            row_misses += !valid & was_narrowed;
             narrowed[x] = 0;
           }
           c[0] += row_hits;
           c[1] += row_misses;
-          c[2] += row_retry_hits;
         }
       });
   const int64_t hits = judged_counts[0], misses = judged_counts[1];
   stats_.prior_hits = hits;
   stats_.prior_misses = misses;
-  stats_.same_frame_fallback_hits = judged_counts[2];
   ++frame_count_;
   // Most narrowed searches failing means the priors describe another scene: whatever a few of them
   // accepted is suspect too, so all are dropped rather than left to fail pixel by pixel.
@@ -666,13 +594,13 @@ double TemporalPrior::hitShare(const cv::Mat& disparity, int64_t* judged) const 
         const cv::v_uint16x8 ok = finiteMask8(d + x, &in0, &in1, &ok0, &ok1);
         const cv::v_uint16x8 flag = cv::v_load_expand(narrowed + x);
         const cv::v_uint16x8 nar = flag == cv::v_setall_u16(1);
-        row_n += countMask(nar | (flag == cv::v_setall_u16(3)));
+        row_n += countMask(nar);
         row_hits += countMask(nar & ok);
       }
 #endif
       for (; x < disparity.cols; ++x) {
         const bool nar = narrowed[x] == 1;
-        row_n += nar | (narrowed[x] == 3);  // a same-frame fallback: its narrowed search missed
+        row_n += nar;
         row_hits += nar & finite(d[x]);
       }
       n += row_n;
@@ -953,15 +881,6 @@ bool TemporalTracker::rejectPriors(const cv::Mat& disparity) {
   fusion_.reset();
   priors_used_ = false;
   return true;
-}
-
-const SearchRange* TemporalTracker::fallbackRange(const cv::Mat& disparity) {
-  checkDisparity(disparity, "TemporalTracker::fallbackRange");
-  if (!params_.enabled || !priors_used_ || !frame_open_) return nullptr;
-  const int64_t budget =
-      int64_t(std::floor(params_.fallback_max_share * double(disparity.total())));
-  return prior_.selectFallback(disparity, budget, fallback_range_) > 0 ? &fallback_range_
-                                                                       : nullptr;
 }
 
 void TemporalTracker::endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage) {

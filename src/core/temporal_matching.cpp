@@ -26,9 +26,8 @@ PostFilterParams withoutPostFilter(PostFilterParams p) {
   return p;
 }
 
-// The passes match only: the depth-edge measure runs once, on the merged map (as
-// RobustMatcher::compute() runs it on its own map), so a pixel of the fallback pass is judged
-// against the narrowed pass's neighbours too.
+// The passes match only: the depth-edge measure runs on each pass's map here, as
+// RobustMatcher::compute() runs it on its own, and the post-filter once on the frame's map.
 MatcherParams withoutEdgeTest(MatcherParams p) {
   p.edge_disparity_jump_px = 0.0;
   p.edge_window_max_px = 0;
@@ -162,7 +161,7 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
     edgeTest(out);
   };
 
-  // No usable prior (the first frame, after a reset): the full range, as a full search.
+  // No usable prior (range == nullptr: the first frame, after a reset): the full range.
   matchPass(range);
   if (range && temporal.rejectPriors(out.disparity)) {
     // The priors described another scene: the frame again over the full range.
@@ -171,46 +170,6 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
     matchPass(range);
   }
   r.priors_used = range != nullptr;
-
-  const SearchRange* fallback = range ? temporal.fallbackRange(out.disparity) : nullptr;
-  if (fallback) {
-    const auto t = Clock::now();
-    matcher_.compute(left, right, second_, fallback);
-    addTimes(second_.stats);
-    // The narrowed pass's map with the picked pixels (non-empty range) taking the second pass's
-    // outcome, whatever it is (they had a miss code). The depth-edge measure judges the new
-    // pixels on that merged map, against the narrowed pass's neighbours too; the narrowed pass's
-    // own pixels keep their verdict (the fallback only adds).
-    out.disparity.copyTo(merged_.disparity);
-    out.code.copyTo(merged_.code);
-    out.confidence.copyTo(merged_.confidence);
-    auto forPicked = [&](const auto& fn) {
-      for (int y = 0; y < out.disparity.rows; ++y) {
-        const int16_t* lo = fallback->lo.ptr<int16_t>(y);
-        const int16_t* hi = fallback->hi.ptr<int16_t>(y);
-        for (int x = 0; x < out.disparity.cols; ++x) {
-          if (lo[x] <= hi[x]) fn(y, x);
-        }
-      }
-    };
-    forPicked([&](int y, int x) {
-      merged_.disparity.at<float>(y, x) = second_.disparity.at<float>(y, x);
-      merged_.code.at<uint8_t>(y, x) = second_.code.at<uint8_t>(y, x);
-      merged_.confidence.at<float>(y, x) = second_.confidence.at<float>(y, x);
-    });
-    edgeTest(merged_);
-    int64_t picked = 0, valid = 0;
-    forPicked([&](int y, int x) {
-      out.disparity.at<float>(y, x) = merged_.disparity.at<float>(y, x);
-      out.code.at<uint8_t>(y, x) = merged_.code.at<uint8_t>(y, x);
-      out.confidence.at<float>(y, x) = merged_.confidence.at<float>(y, x);
-      ++picked;
-      valid += merged_.code.at<uint8_t>(y, x) >= kCodeAcceptedBase;
-    });
-    r.fallback_pixels = picked;
-    r.fallback_valid = valid;
-    r.fallback_ms = msSince(t);
-  }
 
   // Accepted per window size, before the post-filter (as RobustMatcher::compute() counts them).
   out.stats.accepted_per_window.fill(0);

@@ -43,9 +43,6 @@ TEST(TemporalParams, ValidateNamesTheField) {
   p.max_prior_failures = 0;
   EXPECT_NE(p.validate().find("max_prior_failures"), std::string::npos);
   p = TemporalParams();
-  p.fallback_max_share = 1.5;
-  EXPECT_NE(p.validate().find("fallback_max_share"), std::string::npos);
-  p = TemporalParams();
   p.full_range_period_frames = 0;
   EXPECT_NE(p.validate().find("full_range_period_frames"), std::string::npos);
   EXPECT_THROW(TemporalPrior{p}, std::invalid_argument);
@@ -475,7 +472,6 @@ TEST(TemporalTracker, RejectPriorsAsksForAFullRangeMatchOfTheSameFrame) {
   EXPECT_TRUE(tracker.rejectPriors(d));
   EXPECT_FALSE(tracker.priorsUsed());
   EXPECT_TRUE(tracker.fusion().disparity().empty());
-  EXPECT_EQ(tracker.fallbackRange(d), nullptr);  // no narrowed pixel left to fall back
   // The full-range result of the same frame seeds the new priors.
   tracker.endFrame(constantDisparity(size, 50.0f), true, true);
   EXPECT_TRUE(tracker.prior().stats().scene_change);
@@ -796,85 +792,6 @@ TEST(TemporalPrior, NoPixelGoesLongerThanTheFullRangePeriodWithoutASearch) {
   // More than prior_neighbourhood_px from any prior, the pixels wait exactly one period between
   // full-range searches.
   EXPECT_EQ(longest_in_dead_block, p.full_range_period_frames);
-}
-
-TEST(TemporalPrior, SameFrameFallbackTakesTheNarrowedMissesInTurnWithinTheBudget) {
-  TemporalParams p = plainParams();
-  p.prior_neighbourhood_px = 0;
-  TemporalPrior prior(p);
-  const cv::Size size(16, 8);
-  SearchRange range, fallback;
-  prior.buildRange(size, 0, 63, range);
-  prior.update(constantDisparity(size, 30.0f));
-  // The narrowed pass misses 5 pixels in row 2, 3 in row 5 and 4 in row 6.
-  cv::Mat miss = constantDisparity(size, 30.0f);
-  miss(cv::Rect(3, 2, 5, 1)).setTo(kNaN);
-  miss(cv::Rect(0, 5, 3, 1)).setTo(kNaN);
-  miss(cv::Rect(10, 6, 4, 1)).setTo(kNaN);
-  auto picked = [&](int y, int x) {
-    return fallback.lo.at<int16_t>(y, x) <= fallback.hi.at<int16_t>(y, x);
-  };
-  auto count = [&]() {
-    int n = 0;
-    for (int y = 0; y < size.height; ++y) {
-      for (int x = 0; x < size.width; ++x) n += picked(y, x);
-    }
-    return n;
-  };
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_EQ(prior.selectFallback(miss, 0, fallback), 0);  // no time: no fallback
-  // A budget of 8: rows 2 and 5 (5 + 3), over the full range; row 6 waits.
-  ASSERT_EQ(prior.selectFallback(miss, 8, fallback), 8);
-  EXPECT_EQ(count(), 8);
-  for (int x = 3; x < 8; ++x) EXPECT_TRUE(picked(2, x)) << x;
-  for (int x = 0; x < 3; ++x) EXPECT_TRUE(picked(5, x)) << x;
-  EXPECT_FALSE(picked(6, 10));
-  EXPECT_EQ(fallback.lo.at<int16_t>(2, 3), 0);
-  EXPECT_EQ(fallback.hi.at<int16_t>(2, 3), 63);
-  // The second pass finds row 2's pixels (at 40: the prior was wrong), not row 5's.
-  cv::Mat result = miss.clone();
-  result(cv::Rect(3, 2, 5, 1)).setTo(40.0f);
-  prior.update(result);
-  EXPECT_EQ(prior.stats().prior_hits, size.area() - 12);
-  EXPECT_EQ(prior.stats().prior_misses, 12);  // the narrowed search missed all 12
-  EXPECT_EQ(prior.stats().same_frame_fallback_pixels, 8);
-  EXPECT_EQ(prior.stats().same_frame_fallback_hits, 5);
-  EXPECT_EQ(prior.lastDisparity().at<float>(2, 3), 40.0f);
-  // A full-range search that finds nothing drops the prior (as any full-range search).
-  EXPECT_TRUE(std::isnan(prior.lastDisparity().at<float>(5, 0)));
-  // Not searched again: a failed narrowed search, the prior kept (one frame older).
-  EXPECT_EQ(prior.lastDisparity().at<float>(6, 10), 30.0f);
-  EXPECT_EQ(prior.priorAge().at<uint16_t>(6, 10), 1);
-
-  // The next frame, misses in rows 2 (5), 4 (6) and 6 (4): the turn starts at row 6 (4), then
-  // wraps to row 2 (its 5), and row 4 has 1 pixel of budget left, its leftmost miss.
-  miss = constantDisparity(size, 30.0f);
-  miss(cv::Rect(3, 2, 5, 1)).setTo(kNaN);
-  miss(cv::Rect(8, 4, 6, 1)).setTo(kNaN);
-  miss(cv::Rect(10, 6, 4, 1)).setTo(kNaN);
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  ASSERT_EQ(prior.selectFallback(miss, 10, fallback), 10);
-  EXPECT_EQ(count(), 10);
-  for (int x = 10; x < 14; ++x) EXPECT_TRUE(picked(6, x)) << x;
-  for (int x = 3; x < 8; ++x) EXPECT_TRUE(picked(2, x)) << x;
-  EXPECT_TRUE(picked(4, 8));
-  EXPECT_FALSE(picked(4, 9));
-  prior.update(miss);
-  EXPECT_EQ(prior.stats().same_frame_fallback_pixels, 10);
-  EXPECT_EQ(prior.stats().same_frame_fallback_hits, 0);
-  // The next turn starts in row 4, where the budget ran out. (4, 8) lost its prior in the
-  // fallback: it searched the full range in the narrowed pass and is no narrowed miss. Row 4's
-  // 5 misses, then 1 of row 0's 2.
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_EQ(range.lo.at<int16_t>(4, 8), 0);
-  cv::Mat next = constantDisparity(size, 30.0f);
-  next(cv::Rect(8, 4, 6, 1)).setTo(kNaN);
-  next(cv::Rect(0, 0, 2, 1)).setTo(kNaN);
-  ASSERT_EQ(prior.selectFallback(next, 6, fallback), 6);
-  EXPECT_FALSE(picked(4, 8));
-  for (int x = 9; x < 14; ++x) EXPECT_TRUE(picked(4, x)) << x;
-  EXPECT_TRUE(picked(0, 0));
-  EXPECT_FALSE(picked(0, 1));
 }
 
 }  // namespace

@@ -9,9 +9,7 @@
  * - the narrowed range of a pixel spans the priors of a small neighbourhood (image motion of a few
  *   pixels), and near a depth edge in the priors the span of both sides (a moving instrument);
  * - a narrowed search that finds nothing with the first window goes on with the larger ones in the
- *   same frame (fallback_larger_windows), and optionally the misses are searched again over the
- *   full range in the same frame, as far as a budget allows (fallback_max_share); TemporalMatcher
- *   (temporal_matching.hpp) runs these passes;
+ *   same frame (fallback_larger_windows; TemporalMatcher, temporal_matching.hpp);
  * - a frame without usable priors (the first one, after a reset or a cut) searches the full range,
  *   so its output is exactly a full search's;
  * - a pixel without a prior searches the full range in one frame of full_range_period_frames (row
@@ -36,8 +34,7 @@
  *   std::string reset_reason;
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
  *   // TemporalMatcher::compute(): the pass with range (nullptr = the full range),
- *   // rejectPriors() (a cut: the frame again), fallbackRange() (misses again over the full
- *   // range), the post-filter.
+ *   // rejectPriors() (a cut: the frame again over the full range), the post-filter.
  *   temporal_matcher.compute(left, right, temporal, info, range, match);
  *   temporal.endFrame(match.disparity, want_fused, want_coverage);
  *   // temporal.prior().stats(), temporal.fusion().disparity() / age(),
@@ -119,16 +116,6 @@ struct TemporalParams {
   /// (docs/temporal_results.md), so this is what brings the priors' density up to the full
   /// search's. false = the matcher's cap applies.
   bool fallback_larger_windows = true;
-  /// Same-frame fallback over the full range: a pixel whose narrowed search found no valid
-  /// disparity is searched again over the full range in the same frame (a second matcher pass over
-  /// those pixels only, see TemporalMatcher), for priors that point at the wrong disparities. At
-  /// most this share of the image's pixels is searched again per frame (the time a frame allows);
-  /// beyond it the misses take turns row by row, starting where the previous frame stopped, and
-  /// the rest count a failed narrowed search as before (max_prior_failures). A fallback that finds
-  /// nothing drops the prior (as any full-range search). In [0, 1]; 0 = off (the default: on the
-  /// in-vivo video it found nothing that the larger windows did not, at several times their cost,
-  /// docs/temporal_results.md).
-  double fallback_max_share = 0.0;
   /// Scene change: when the share of a frame's narrowed searches that find a valid disparity
   /// falls below this fraction of the previous frame's share, the priors are dropped at once (a
   /// cut, a jump of the endoscope): TemporalTracker::rejectPriors() then asks for the frame to be
@@ -205,12 +192,7 @@ struct TemporalPriorStats {
                                   ///< deferred
   bool scene_change = false;      ///< all priors dropped this frame: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
-  int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update()); a
-                                  ///< narrowed search that missed counts here even when the
-                                  ///< same-frame fallback then found a disparity
-  int64_t same_frame_fallback_pixels = 0;  ///< narrowed misses searched again over the full range
-                                           ///< in the same frame (selectFallback())
-  int64_t same_frame_fallback_hits = 0;    ///< of those: valid in the frame's final disparity
+  int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
   double mean_narrowed_width_px = 0.0;  ///< mean hi - lo + 1 over narrowed pixels
 };
 
@@ -256,17 +238,6 @@ class TemporalPrior {
    */
   void update(const cv::Mat& disparity);
 
-  /**
-   * Same-frame fallback, between matching the latest buildRange()'s range and update(): picks the
-   * narrowed pixels that @p disparity (the narrowed pass, CV_32FC1, NaN invalid) gives no valid
-   * value, at most @p budget of them (rows taken in turn from where the previous call stopped),
-   * and writes @p range: the full range at the picked pixels, an empty range (lo > hi)
-   * elsewhere. update() counts them as narrowed misses, and one that finds nothing drops its prior
-   * (as any full-range search).
-   * @return the number picked (range untouched when 0).
-   */
-  int64_t selectFallback(const cv::Mat& disparity, int64_t budget, SearchRange& range);
-
   /// Share of the latest buildRange()'s narrowed pixels that @p disparity (CV_32FC1, NaN invalid)
   /// gives a valid value, in [0, 1] (1 when none was narrowed); @p judged gets their number.
   double hitShare(const cv::Mat& disparity, int64_t* judged = nullptr) const;
@@ -296,10 +267,8 @@ class TemporalPrior {
   cv::Mat last_disparity_;  // CV_32FC1
   cv::Mat age_;             // CV_16UC1
   cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
-  cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed, 2 deferred,
-                            // 3 narrowed, missed and searched again over the full range
+  cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed, 2 deferred
   int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
-  int fallback_row_ = 0;    // the row where the next selectFallback() starts
   double reference_hit_share_ = -1.0;  // see referenceHitShare()
   cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
   cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
@@ -418,15 +387,6 @@ class TemporalTracker {
   bool rejectPriors(const cv::Mat& disparity);
 
   /**
-   * Optional, after matching with the range of beginFrame() (and rejectPriors()):
-   * the pixels whose narrowed search missed, to be searched again over the full range in this
-   * frame (TemporalParams::fallback_max_share; TemporalPrior::selectFallback()). Match them with
-   * the returned range (every other pixel has an empty range), merge the results into the
-   * frame's disparity and pass that to endFrame(). @return nullptr when there is none.
-   */
-  const SearchRange* fallbackRange(const cv::Mat& disparity);
-
-  /**
    * After matching, with the frame's final disparity (CV_32FC1, NaN invalid).
    * @param fuse           update the fused disparity / age
    * @param track_coverage update the coverage tracker
@@ -446,7 +406,6 @@ class TemporalTracker {
   TemporalFusion fusion_;
   CoverageTracker coverage_;
   SearchRange range_;
-  SearchRange fallback_range_;
   bool priors_used_ = false;
   bool frame_open_ = false;
   std::string pending_reason_;  // a scene change seen in endFrame(), reported by beginFrame()

@@ -4,26 +4,16 @@
  * and 5.3): priors that add to the full search's result and never take from it.
  *
  * Per frame, between TemporalTracker::beginFrame() and endFrame():
- 1. no usable prior (the first frame, after a reset or a scene change): the full range, so the
+ * 1. no usable prior (the first frame, after a reset or a scene change): the full range, so the
  *    frame's output is exactly a full search's;
  * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred); with
  *    TemporalParams::fallback_larger_windows a narrowed search that finds nothing with the first
  *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted);
  * 3. a scene change (TemporalTracker::rejectPriors()): the frame again over the full range;
- * 4. the same-frame fallback over the full range (TemporalParams::fallback_max_share): the pixels
- *    whose narrowed search still missed, searched again over the full range (a second matcher
- *    pass over those pixels only) and merged in; the depth-edge measure judges them on the merged
- *    map (against the narrowed pass's neighbours too), the narrowed pass's pixels keep the verdict
- *    of their own pass: the fallback only adds;
- * 5. the post-filter (isolated outliers, small holes) once, on the merged map, exactly as
+ * 4. the post-filter (isolated outliers, small holes) once, on the frame's map, exactly as
  *    RobustMatcher::compute() runs it after its single pass.
- * With priors off, or without larger windows and a second pass, the result equals a single
- * RobustMatcher::compute() with the same range.
- *
- * Limitation of the second pass: a pixel's left-right check compares with the right-to-left
- * profiles of the pixels searched in the same call, and those are only the picked ones (the
- * matcher builds them from the requested ranges), so the check is weaker there than in a single
- * call. A range that bounds the profiles without being matched itself would need a matcher change.
+ * With priors off, or without larger windows, the result equals a single RobustMatcher::compute()
+ * with the same range.
  *
  * Use (what Pipeline does per frame):
  * @code
@@ -49,9 +39,6 @@ namespace endo_stereo {
 struct TemporalMatchReport {
   bool priors_used = false;      ///< the output comes from narrowed ranges (with any fallback)
   bool priors_rejected = false;  ///< a scene change: the frame was matched again
-  int64_t fallback_pixels = 0;   ///< narrowed misses searched again over the full range
-  int64_t fallback_valid = 0;    ///< of those, valid after the second pass (before post-filter)
-  double fallback_ms = 0.0;      ///< the second pass and the merge
 };
 
 /// RobustMatcher's post-filter (outlier removal, hole filling, confidence of filled pixels, the
@@ -82,7 +69,6 @@ class TemporalMatcher {
   PostFilterParams filter_params_;
   RobustMatcher matcher_;  // the passes only match: edge test and post-filter run on the result
   bool larger_windows_ = false;  // matcher_ tries every window size in narrowed ranges
-  MatchResult second_, merged_;
   cv::Mat window_idx_;   // the merged map's accepting window indices (depth-edge measure)
   cv::Mat edge_tmp_[5];  // the depth-edge measure's scratch
 };
