@@ -2,7 +2,7 @@
 # What `make bench` runs: real recordings first, generated scenes second, then BENCHMARKS.md.
 #   1. real (when ../shared/data/real is present; each run says so when it is not):
 #      - the in-vivo video real/hamlyn_invivo1, all 150 frames, search 0..127 (endo_stereo_evaluate:
-#        ours with and without priors, OpenCV BM and SGBM; density, jumps, coverage, time);
+#        ours with and without priors, OpenCV BM and SGBM; density, jumps, flicker, coverage, time);
 #      - the real 960x540 frame: the SCARED ds1 pair rectified with its calibration
 #        (endo_stereo_cli --calib --out-rectified), its centre 960x540 crop, search 48..111: the
 #        same pair 10 times (full search; ours without priors is the full-search time) and a

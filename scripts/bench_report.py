@@ -80,14 +80,18 @@ class Page:
 
 
 def evaluation_table(page, ev):
-    page.add("| method | density median %% | density mean %% | jumps > %g px %% | central covered"
-             " every %d frames %% | central never %% | ms/frame median | time / SGBM | CPU ms"
-             " median |" % (ev["jump_px"], ev["window_frames"]),
-             "|---|---:|---:|---:|---:|---:|---:|---:|---:|")
+    # An evaluation.json without flicker_share (an older tool) shows n/a.
+    page.add("| method | density median %% | density mean %% | jumps > %g px %% |"
+             " motion-compensated flicker > %g px %% | central covered every %d frames %% |"
+             " central never %% |"
+             " ms/frame median | time / SGBM | CPU ms median |"
+             % (ev["jump_px"], ev["jump_px"], ev["window_frames"]),
+             "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|")
     for m in ev["methods"]:
         timed = "ms_median" in m
-        page.add("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
+        page.add("| %s | %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
             m["name"], pct(m["density_median"]), pct(m["density_mean"]), pct(m["jump_share"], 2),
+            pct(m.get("flicker_share"), 2),
             pct(m["coverage_every_window"]), pct(m["coverage_never"]),
             num(m.get("ms_median")) if timed else "-",
             num(m.get("time_over_sgbm"), "%.2f") if timed else "-",
@@ -178,6 +182,13 @@ def main():
              "- **jumps**: among pixels with a value in two consecutive frames, the share whose"
              " disparity changed by more than 2 px (pooled over all frame pairs). On slowly moving"
              " tissue such a jump is almost always an error;",
+             "- **motion-compensated flicker**: for each pair of consecutive frames and each pixel"
+             " with a value in both, its change d_t - d_{t-1} minus the mean change of the pixels"
+             " with a value in both within the 17x17 square centred on it (the pixel itself"
+             " included, the square cut at the image border); the share of those pixels where the"
+             " absolute value exceeds 2 px (pooled over all frame pairs, like the jumps). Motion"
+             " shared by the neighbourhood (breathing, a camera pan) cancels; a pixel that changes"
+             " alone does not;",
              "- **coverage**: share of the central pixels (the middle half of the image in each"
              " direction) with a value in every window of 10 consecutive frames; **never**: without"
              " a value in any frame;",
@@ -207,8 +218,9 @@ def main():
         page.provenance("invivo", e["machine"])
         evaluation_table(page, e)
         page.add("Frame %d: the left image, each method's disparity on one colour scale (0..%d px),"
-                 " the pixels that jumped since the previous frame, and each method's coverage map"
-                 " over the whole sequence:" % (e["picture_frame"] + 1, e["max_disparity"]), "",
+                 " the pixels that jumped since the previous frame, the pixels that flickered"
+                 " (motion-compensated), and each method's coverage map over the whole sequence:"
+                 % (e["picture_frame"] + 1, e["max_disparity"]), "",
                  "![in-vivo comparison](docs/bench_invivo.png)", "")
     if ev["real960_static"] or ev["real960_moving"]:
         page.add("### 1.2 A real frame at 960x540: SCARED dataset 1, search 48..111", "",

@@ -19,6 +19,9 @@ SequenceMetrics::SequenceMetrics(const SequenceMetricsParams& params) : params_(
   }
   if (!(params.jump_px >= 0.0))
     throw std::invalid_argument("SequenceMetrics: jump_px must be >= 0");
+  if (params.flicker_window_px < 3 || params.flicker_window_px % 2 == 0) {
+    throw std::invalid_argument("SequenceMetrics: flicker_window_px must be odd and >= 3");
+  }
 }
 
 void SequenceMetrics::reset() {
@@ -27,9 +30,15 @@ void SequenceMetrics::reset() {
   current_gap_.release();
   longest_gap_.release();
   jump_map_.release();
+  flicker_map_.release();
+  change_.release();
+  both_.release();
+  change_sum_.release();
+  both_sum_.release();
   densities_.clear();
   jump_counts_.clear();
   compared_counts_.clear();
+  flicker_counts_.clear();
 }
 
 void SequenceMetrics::addFrame(const cv::Mat& disparity) {
@@ -44,6 +53,8 @@ void SequenceMetrics::addFrame(const cv::Mat& disparity) {
     longest_gap_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
   }
   jump_map_.create(disparity.size(), CV_8UC1);
+  change_.create(disparity.size(), CV_64FC1);
+  both_.create(disparity.size(), CV_64FC1);
   const float jump = static_cast<float>(params_.jump_px);
   int64_t valid = 0, jumps = 0, compared = 0;
   for (int y = 0; y < disparity.rows; ++y) {
@@ -52,16 +63,24 @@ void SequenceMetrics::addFrame(const cv::Mat& disparity) {
     uint16_t* cur = current_gap_.ptr<uint16_t>(y);
     uint16_t* lng = longest_gap_.ptr<uint16_t>(y);
     uint8_t* jm = jump_map_.ptr<uint8_t>(y);
+    double* ch = change_.ptr<double>(y);
+    double* bo = both_.ptr<double>(y);
     for (int x = 0; x < disparity.cols; ++x) {
       const bool has = std::isfinite(d[x]);
       valid += has;
       uint8_t j = 0;
+      ch[x] = 0.0;
+      bo[x] = 0.0;
       if (has && p && std::isfinite(p[x])) {
         ++compared;
         // |a - b| > t, in float as the maps are stored (a 2.0 px change is not a jump).
         const bool jumped = std::fabs(d[x] - p[x]) > jump;
         jumps += jumped;
         j = jumped ? 2 : 1;
+        // In double the difference of two floats is exact (unless one is over 2^28 times the
+        // other): no rounding before the sums.
+        ch[x] = static_cast<double>(d[x]) - static_cast<double>(p[x]);
+        bo[x] = 1.0;
       }
       jm[x] = j;
       if (has) {
@@ -73,12 +92,50 @@ void SequenceMetrics::addFrame(const cv::Mat& disparity) {
     }
   }
   densities_.push_back(static_cast<double>(valid) / disparity.total());
-  if (frames_ > 0) {
+  if (frames_ == 0) {
+    flicker_map_ = cv::Mat::zeros(disparity.size(), CV_8UC1);  // the first frame compares nothing
+  } else {
+    const int64_t flicker = flickerMap();
     jump_counts_.push_back(jumps);
     compared_counts_.push_back(compared);
+    flicker_counts_.push_back(flicker);
   }
   disparity.copyTo(previous_);
   ++frames_;
+}
+
+int64_t SequenceMetrics::flickerMap() {
+  // Sums over the square by box filters (O(1) per pixel whatever its size); outside the image
+  // counts as no value (constant border 0: neither change nor a pixel). In double: the mask sums
+  // are exact integers, and the change sums are exact wherever the changes are multiples of a
+  // common power of two within a few dozen bits of range (OpenCV's 1/16 px, the hand-made maps
+  // of the tests); then a change shared by the whole square gives a mean equal to it and a
+  // residual of exactly 0. Elsewhere the sums round at about 1e-16 of their size.
+  const int w = params_.flicker_window_px;
+  cv::boxFilter(change_, change_sum_, CV_64F, cv::Size(w, w), cv::Point(-1, -1),
+                /*normalize=*/false, cv::BORDER_CONSTANT);
+  cv::boxFilter(both_, both_sum_, CV_64F, cv::Size(w, w), cv::Point(-1, -1), /*normalize=*/false,
+                cv::BORDER_CONSTANT);
+  flicker_map_.create(change_.size(), CV_8UC1);
+  int64_t flicker = 0;
+  for (int y = 0; y < change_.rows; ++y) {
+    const double* ch = change_.ptr<double>(y);
+    const double* bo = both_.ptr<double>(y);
+    const double* cs = change_sum_.ptr<double>(y);
+    const double* bs = both_sum_.ptr<double>(y);
+    uint8_t* fm = flicker_map_.ptr<uint8_t>(y);
+    for (int x = 0; x < change_.cols; ++x) {
+      if (bo[x] == 0.0) {
+        fm[x] = 0;
+        continue;
+      }
+      // bs[x] >= 1: the pixel itself is in its square.
+      const bool flickered = std::fabs(ch[x] - cs[x] / bs[x]) > params_.jump_px;
+      flicker += flickered;
+      fm[x] = flickered ? 2 : 1;
+    }
+  }
+  return flicker;
 }
 
 cv::Mat SequenceMetrics::longestGap() const { return longest_gap_.clone(); }
@@ -98,7 +155,9 @@ SequenceSummary SequenceMetrics::summary() const {
     s.jump_pixels += jump_counts_[i];
     s.compared_pixels += compared_counts_[i];
   }
+  for (int64_t f : flicker_counts_) s.flicker_pixels += f;
   s.jump_share = s.compared_pixels > 0 ? double(s.jump_pixels) / s.compared_pixels : 0.0;
+  s.flicker_share = s.compared_pixels > 0 ? double(s.flicker_pixels) / s.compared_pixels : 0.0;
   s.window_frames = std::min(params_.window_frames, frames_);
   s.central = centralHalf(longest_gap_.size());
   int64_t every = 0, never = 0;

@@ -1,8 +1,9 @@
 // endo_stereo_evaluate: how the robust matcher compares with OpenCV's StereoBM and StereoSGBM on a
 // recording without ground truth. Runs the Pipeline (temporal priors on, and off) and both OpenCV
 // matchers on the same rectified frames, and reports per method density, temporal stability
-// (disparity jumps between consecutive frames), coverage of the central pixels and time per
-// frame; pictures of one frame. The metrics are sequence_evaluation.hpp's. `--help` lists flags.
+// (disparity jumps between consecutive frames, raw and motion-compensated), coverage of the
+// central pixels and time per frame; pictures of one frame. The metrics are
+// sequence_evaluation.hpp's. `--help` lists flags.
 //
 // Exit status: 0 success; 1 an input could not be read or processed, or an output not written;
 // 2 bad usage.
@@ -87,7 +88,11 @@ Our pipeline (as endo_stereo_cli): --params FILE.yaml, --set KEY=VALUE, --calib 
 
 Evaluation:
   --methods LIST              of ours, ours-no-priors, bm, sgbm (default: all four)
-  --jump-px T                 a change larger than T px between frames is a jump (default 2)
+  --jump-px T                 a change larger than T px between frames is a jump, and a change
+                              more than T px off its neighbourhood's mean change a flicker
+                              (default 2)
+  --flicker-window N          side of the flicker's neighbourhood square, px (odd, >= 3;
+                              default 17)
   --window N                  coverage window, frames (default 10)
   --skip-timing N             frames left out of the time medians (default 2: start-up, priors)
   --picture-frame K           the frame (0-based position in the run) the pictures show
@@ -97,15 +102,19 @@ Evaluation:
 Output:
   --out DIR                   DIR/evaluation.json and the pictures: comparison.png (left image;
                               per method the disparity on one colour scale, the jump map, the
-                              coverage map), left.png, disparity_*.png, jumps_*.png, coverage_*.png
+                              flicker map, the coverage map), left.png, disparity_*.png,
+                              jumps_*.png, flicker_*.png, coverage_*.png
   --json FILE                 the JSON elsewhere (default DIR/evaluation.json)
   --quiet                     no progress lines
   --help
 
 The table goes to stdout. Density: share of pixels with a value in a frame. Jumps: among pixels
 with a value in two consecutive frames, the share whose disparity changed by more than T px.
-Coverage: share of the central pixels (middle half in each direction) with a value in every window
-of N consecutive frames; never: without a value in any frame. Ours also gets a line for its fused
+Motion-compensated flicker: among the same pixels, the share whose change differs by more than
+T px from the mean change of the pixels with a value in both frames within the --flicker-window
+square centred on it (itself included): motion shared by the neighbourhood cancels. Coverage:
+share of the central pixels (middle half in each direction) with a value in every window of N
+consecutive frames; never: without a value in any frame. Ours also gets a line for its fused
 output (the latest value measured within the pipeline's temporal.fused_max_age_frames); its own
 line counts only the values measured on each frame.
 )";
@@ -125,6 +134,7 @@ struct Options {
   int threads = 0;
   std::vector<std::string> methods = {"ours", "ours-no-priors", "bm", "sgbm"};
   double jump_px = 2.0;
+  int flicker_window = 17;
   int window = 10, skip_timing = 2, picture_frame = -1;
   std::string label, out_dir, json;
   bool quiet = false;
@@ -204,6 +214,12 @@ Options parseArgs(int argc, char** argv) {
       o.methods = parseMethods(args.text());
     } else if (args.is("--jump-px")) {
       o.jump_px = args.positive();
+    } else if (args.is("--flicker-window")) {
+      o.flicker_window = args.integer(3);
+      if (o.flicker_window % 2 == 0) {
+        throw UsageError("--flicker-window: expected an odd number, got " +
+                         std::to_string(o.flicker_window));
+      }
     } else if (args.is("--window")) {
       o.window = args.integer(1);
     } else if (args.is("--skip-timing")) {
@@ -265,7 +281,7 @@ struct Stream {
   bool timed = true;  // fused streams come from the same call as their method
   endo_stereo::SequenceMetrics metrics;
   std::vector<double> ms, cpu_ms;
-  cv::Mat picture_disparity, picture_jumps;
+  cv::Mat picture_disparity, picture_jumps, picture_flicker;
   explicit Stream(const endo_stereo::SequenceMetricsParams& p) : metrics(p) {}
 };
 
@@ -346,6 +362,7 @@ std::string evaluationJson(const Options& o, const RunInfo& r,
   j.key("min_disparity").value(o.min_disparity).key("max_disparity").value(o.max_disparity);
   j.key("opencv_num_disparities").value(r.num_disp);
   j.key("jump_px").value(o.jump_px).key("window_frames").value(r.window);
+  j.key("flicker_window_px").value(o.flicker_window);
   j.key("skip_timing_frames").value(o.skip_timing);
   j.key("picture_frame").value(r.picture);
   j.key("machine").beginObject();
@@ -369,6 +386,8 @@ std::string evaluationJson(const Options& o, const RunInfo& r,
     j.key("density_mean").value(sum.density_mean);
     j.key("jump_share").value(sum.jump_share);
     j.key("jump_pixels").value(sum.jump_pixels).key("compared_pixels").value(sum.compared_pixels);
+    j.key("flicker_share").value(sum.flicker_share);
+    j.key("flicker_pixels").value(sum.flicker_pixels);
     j.key("coverage_every_window").value(sum.coverage_every_window);
     j.key("coverage_never").value(sum.coverage_never);
     if (s->timed) {
@@ -385,6 +404,9 @@ std::string evaluationJson(const Options& o, const RunInfo& r,
     j.endArray();
     j.key("jumps").beginArray();
     for (int64_t v : s->metrics.jumpCounts()) j.value(v);
+    j.endArray();
+    j.key("flicker").beginArray();
+    for (int64_t v : s->metrics.flickerCounts()) j.value(v);
     j.endArray();
     j.key("compared").beginArray();
     for (int64_t v : s->metrics.comparedCounts()) j.value(v);
@@ -403,7 +425,8 @@ std::string evaluationJson(const Options& o, const RunInfo& r,
   return j.str();
 }
 
-/// Writes left.png, disparity_*.png, jumps_*.png, coverage_*.png and comparison.png to o.out_dir.
+/// Writes left.png, disparity_*.png, jumps_*.png, flicker_*.png, coverage_*.png and comparison.png
+/// to o.out_dir.
 bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>& streams,
                    const cv::Mat& picture_left, int picture, int n, int window, cv::Size frame_size,
                    std::string* error) {
@@ -413,7 +436,7 @@ bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>&
     return false;
   }
   const int cw = std::min(frame_size.width, 480);
-  std::vector<cv::Mat> row_disp, row_jump, row_cov;
+  std::vector<cv::Mat> row_disp, row_jump, row_flicker, row_cov;
   row_disp.push_back(cell(picture_left, cw, cv::format("left, frame %d of %d", picture + 1, n)));
   cv::Mat gray_bg;
   cv::cvtColor(picture_left, gray_bg, cv::COLOR_BGR2GRAY);
@@ -422,17 +445,22 @@ bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>&
     std::string file = s->key;
     const cv::Mat disp = endo_stereo::colorizeDisparity(s->picture_disparity, lo, hi);
     const cv::Mat jumps = endo_stereo::jumpMapImage(s->picture_jumps, gray_bg);
+    const cv::Mat flicker = endo_stereo::jumpMapImage(s->picture_flicker, gray_bg);
     const endo_stereo::SequenceSummary sum = s->metrics.summary();
     const cv::Mat cov =
         endo_stereo::coverageMapImage(s->metrics.longestGap(), sum.frames, o.window);
     if (!writeImage(d + "disparity_" + file + ".png", disp, error) ||
         !writeImage(d + "jumps_" + file + ".png", jumps, error) ||
+        !writeImage(d + "flicker_" + file + ".png", flicker, error) ||
         !writeImage(d + "coverage_" + file + ".png", cov, error)) {
       return false;
     }
     const double dens = s->metrics.densities()[picture];
     row_disp.push_back(cell(disp, cw, cv::format("%s: %.0f%% dense", s->name.c_str(), 100 * dens)));
     row_jump.push_back(cell(jumps, cw, cv::format("jumps > %g px vs previous frame", o.jump_px)));
+    row_flicker.push_back(cell(flicker, cw,
+                               cv::format("flicker > %g px (%dx%d motion removed)", o.jump_px,
+                                          o.flicker_window, o.flicker_window)));
     row_cov.push_back(
         cell(cov, cw,
              cv::format("coverage: %.0f%% every %d, %.0f%% never", 100 * sum.coverage_every_window,
@@ -467,6 +495,14 @@ bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>&
   if (!row_jump.empty()) {
     row_jump.insert(row_jump.begin(), scale_cell);
     hrow(row_jump);
+    cv::Mat flicker_legend = blankLike(row_disp[0]);
+    putLines(
+        flicker_legend,
+        {"flicker maps: as the jump maps, for the", "  change minus the mean change of the pixels",
+         cv::format("  compared in its %dx%d square", o.flicker_window, o.flicker_window)},
+        40);
+    row_flicker.insert(row_flicker.begin(), flicker_legend);
+    hrow(row_flicker);
     row_cov.insert(row_cov.begin(), blankLike(row_disp[0]));
     hrow(row_cov);
   }
@@ -577,6 +613,7 @@ int run(int argc, char** argv) {
   // The methods, in the order of the table.
   endo_stereo::SequenceMetricsParams mp;
   mp.jump_px = o.jump_px;
+  mp.flicker_window_px = o.flicker_window;
   mp.window_frames = o.window;
   std::vector<std::unique_ptr<Stream>> streams;
   auto addStream = [&](const std::string& key, const std::string& name, bool timed) {
@@ -670,8 +707,10 @@ int run(int argc, char** argv) {
       if (n == picture) {
         x.measured->picture_disparity = x.out.match.disparity.clone();
         x.measured->picture_jumps = x.measured->metrics.lastJumpMap().clone();
+        x.measured->picture_flicker = x.measured->metrics.lastFlickerMap().clone();
         x.fused->picture_disparity = x.out.fused_disparity.clone();
         x.fused->picture_jumps = x.fused->metrics.lastJumpMap().clone();
+        x.fused->picture_flicker = x.fused->metrics.lastFlickerMap().clone();
       }
     }
     if (!ok) {
@@ -710,6 +749,7 @@ int run(int argc, char** argv) {
       if (n == picture) {
         stream->picture_disparity = d;
         stream->picture_jumps = stream->metrics.lastJumpMap().clone();
+        stream->picture_flicker = stream->metrics.lastFlickerMap().clone();
       }
     }
     if (n == picture) {
@@ -742,11 +782,11 @@ int run(int argc, char** argv) {
               frame_size.width, frame_size.height, o.min_disparity, o.max_disparity,
               o.min_disparity, o.min_disparity + num_disp - 1);
   std::printf(
-      "| method | density median %% | density mean %% | jumps > %g px %% | central covered every "
-      "%d "
-      "frames %% | central never %% | ms/frame median | time / SGBM | CPU ms median |\n"
-      "|---|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-      o.jump_px, window);
+      "| method | density median %% | density mean %% | jumps > %g px %% | motion-compensated "
+      "flicker > %g px %% | central covered every %d frames %% | central never %% | ms/frame "
+      "median | time / SGBM | CPU ms median |\n"
+      "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
+      o.jump_px, o.jump_px, window);
   for (const auto& s : streams) {
     const endo_stereo::SequenceSummary sum = s->metrics.summary();
     char timing[128] = "| - | - | - |";
@@ -756,9 +796,10 @@ int run(int argc, char** argv) {
                     std::isfinite(sgbm_ms) ? cv::format("%.2f", ms / sgbm_ms).c_str() : "-",
                     timingMedian(s->cpu_ms, o.skip_timing));
     }
-    std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.1f %s\n", s->name.c_str(),
+    std::printf("| %s | %.1f | %.1f | %.2f | %.2f | %.1f | %.1f %s\n", s->name.c_str(),
                 100 * sum.density_median, 100 * sum.density_mean, 100 * sum.jump_share,
-                100 * sum.coverage_every_window, 100 * sum.coverage_never, timing);
+                100 * sum.flicker_share, 100 * sum.coverage_every_window, 100 * sum.coverage_never,
+                timing);
   }
   std::printf(
       "\nTimes: wall time per frame, median over frames %d..%d; ours is the whole "

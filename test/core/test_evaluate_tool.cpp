@@ -1,5 +1,6 @@
 // endo_stereo_evaluate end to end: on a generated sequence (image files and the same frames as a
-// bag) its OpenCV BM and SGBM figures equal an independent computation, and so they do on the
+// bag) its OpenCV BM and SGBM figures (jumps and motion-compensated flicker included) equal an
+// independent computation, and so they do on the
 // real in-vivo recording when ../shared/data is present.
 #include <gtest/gtest.h>
 #include <sys/stat.h>
@@ -45,9 +46,43 @@ YAML::Node methodNode(const YAML::Node& root, const std::string& key) {
 
 struct Figures {
   double density_mean = 0, density_median = 0;
-  int64_t jumps = 0, compared = 0;
+  int64_t jumps = 0, compared = 0, flicker = 0;
   double covered = 0, never = 0;
 };
+
+// Motion-compensated flicker between two OpenCV outputs (1/16 px integers), in integers: per
+// pixel compared, the sums of the compared changes and of the compared pixels over its 17x17
+// square (cut at the border) from summed-area tables, and |change - sum / count| > 2 px tested
+// as |change * count - sum| > 32 * count, exactly.
+int64_t flickerCount(const cv::Mat& now, const cv::Mat& before, int min_d) {
+  const int w = now.cols, h = now.rows, r = 8;
+  std::vector<int64_t> sum((w + 1) * (h + 1), 0), cnt((w + 1) * (h + 1), 0);
+  auto at = [w](int x, int y) { return size_t(y) * (w + 1) + x; };
+  auto compared = [&](int x, int y) {
+    return now.at<int16_t>(y, x) >= min_d * 16 && before.at<int16_t>(y, x) >= min_d * 16;
+  };
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      const bool c = compared(x, y);
+      const int64_t change = c ? now.at<int16_t>(y, x) - before.at<int16_t>(y, x) : 0;
+      sum[at(x + 1, y + 1)] = change + sum[at(x, y + 1)] + sum[at(x + 1, y)] - sum[at(x, y)];
+      cnt[at(x + 1, y + 1)] = c + cnt[at(x, y + 1)] + cnt[at(x + 1, y)] - cnt[at(x, y)];
+    }
+  }
+  int64_t flicker = 0;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (!compared(x, y)) continue;
+      const int x0 = std::max(0, x - r), x1 = std::min(w, x + r + 1);
+      const int y0 = std::max(0, y - r), y1 = std::min(h, y + r + 1);
+      const int64_t s = sum[at(x1, y1)] - sum[at(x0, y1)] - sum[at(x1, y0)] + sum[at(x0, y0)];
+      const int64_t n = cnt[at(x1, y1)] - cnt[at(x0, y1)] - cnt[at(x1, y0)] + cnt[at(x0, y0)];
+      const int64_t change = now.at<int16_t>(y, x) - before.at<int16_t>(y, x);
+      flicker += std::abs(change * n - s) > 32 * n;
+    }
+  }
+  return flicker;
+}
 
 // BM / SGBM with every setting spelled out (the settings of ../shared/data/README.md), counted
 // with plain loops: nothing shared with the tool but OpenCV.
@@ -84,6 +119,7 @@ Figures independent(const std::vector<std::string>& lefts, const std::vector<std
         f.jumps += std::abs(a - b) > 32;  // more than 2 px in 1/16 px units
       }
     }
+    f.flicker += flickerCount(raw[i], raw[i - 1], min_d);
   }
   std::sort(dens.begin(), dens.end());
   f.density_median = n % 2 ? dens[n / 2] : 0.5 * (dens[n / 2 - 1] + dens[n / 2]);
@@ -166,6 +202,8 @@ TEST_F(EvaluateTool, OpenCvFiguresOnAGeneratedSequenceMatchAnIndependentComputat
     ASSERT_GT(f.compared, 0);
     EXPECT_EQ(m["jump_pixels"].as<int64_t>(), f.jumps);
     EXPECT_EQ(m["compared_pixels"].as<int64_t>(), f.compared);
+    EXPECT_EQ(m["flicker_pixels"].as<int64_t>(), f.flicker);
+    EXPECT_NEAR(m["flicker_share"].as<double>(), double(f.flicker) / f.compared, kJsonTol);
     EXPECT_NEAR(m["density_mean"].as<double>(), f.density_mean, kJsonTol);
     EXPECT_NEAR(m["density_median"].as<double>(), f.density_median, kJsonTol);
     EXPECT_NEAR(m["coverage_every_window"].as<double>(), f.covered, kJsonTol);
@@ -178,13 +216,18 @@ TEST_F(EvaluateTool, OpenCvFiguresOnAGeneratedSequenceMatchAnIndependentComputat
     const YAML::Node m = methodNode(root, key);
     ASSERT_TRUE(m);
     EXPECT_EQ(m["density"].size(), 12u);
+    EXPECT_EQ(m["flicker"].size(), 11u);
+    EXPECT_TRUE(m["flicker_share"]);
     // A floor so that an empty output fails: the matcher finds most of a generated scene.
     EXPECT_GT(m["density_mean"].as<double>(), 0.3);
   }
   const cv::Mat figure = cv::imread(dir_ + "/files/comparison.png");
   ASSERT_FALSE(figure.empty());
   EXPECT_EQ(figure.cols, 7 * 256);  // the left image and six streams, at full width (< 480)
-  for (const char* f : {"left.png", "disparity_sgbm.png", "jumps_ours.png", "coverage_bm.png"}) {
+  // Rows: disparity, jumps, flicker, coverage, each under a 22 px caption.
+  EXPECT_EQ(figure.rows, 4 * (192 + 22));
+  for (const char* f : {"left.png", "disparity_sgbm.png", "jumps_ours.png",
+                        "flicker_ours-fused.png", "coverage_bm.png"}) {
     EXPECT_TRUE(exists(dir_ + "/files/" + f)) << f;
   }
 }
@@ -215,6 +258,7 @@ TEST_F(EvaluateTool, AStaticPairHasNoJumpsForOpenCv) {
   for (const char* key : {"bm", "sgbm"}) {
     const YAML::Node m = methodNode(root, key);
     EXPECT_EQ(m["jump_pixels"].as<int64_t>(), 0) << key;  // deterministic on the same pair
+    EXPECT_EQ(m["flicker_pixels"].as<int64_t>(), 0) << key;
     EXPECT_GT(m["compared_pixels"].as<int64_t>(), 0) << key;
   }
 }
@@ -231,6 +275,8 @@ TEST_F(EvaluateTool, BadUsageExitsWithTwo) {
   const std::string pair = "--left " + lefts_[0] + " --right " + rights_[0];
   EXPECT_EQ(evaluate(pair + range() + " --threads abc"), 2);
   EXPECT_EQ(evaluate(pair + range() + " --jump-px 2px"), 2);
+  EXPECT_EQ(evaluate(pair + range() + " --flicker-window 16"), 2);  // odd only
+  EXPECT_EQ(evaluate(pair + range() + " --flicker-window 1"), 2);
   EXPECT_EQ(evaluate("--left " + dir_ + "/seq/left/%06d.png --right " + dir_ +
                      "/seq/right/%06d.png --count 1x" + range()),
             2);
@@ -263,6 +309,7 @@ TEST_F(EvaluateTool, OpenCvFiguresOnTheInVivoRecordingMatchAnIndependentComputat
     const Figures f = independent(lefts, rights, std::string(key) == "sgbm", 0, 127);
     EXPECT_EQ(m["jump_pixels"].as<int64_t>(), f.jumps);
     EXPECT_EQ(m["compared_pixels"].as<int64_t>(), f.compared);
+    EXPECT_EQ(m["flicker_pixels"].as<int64_t>(), f.flicker);
     EXPECT_NEAR(m["density_mean"].as<double>(), f.density_mean, kJsonTol);
     EXPECT_NEAR(m["coverage_every_window"].as<double>(), f.covered, kJsonTol);
     EXPECT_NEAR(m["coverage_never"].as<double>(), f.never, kJsonTol);
