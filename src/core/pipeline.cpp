@@ -204,7 +204,7 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     // (temporal_matching.hpp).
     t = Clock::now();
     TemporalMatchReport report;
-    impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, impl_->temporal, info, range,
+    impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, impl_->temporal, range,
                            out.match, &report);
     out.priors_used = report.priors_used;
     out.priors_rejected = report.priors_rejected;

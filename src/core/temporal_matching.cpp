@@ -114,9 +114,8 @@ void TemporalMatcher::setParams(const MatcherParams& matcher_params,
 }
 
 void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
-                              TemporalTracker& temporal, const TemporalFrameInfo& info,
-                              const SearchRange* range, MatchResult& out,
-                              TemporalMatchReport* report) {
+                              TemporalTracker& temporal, const SearchRange* range,
+                              MatchResult& out, TemporalMatchReport* report) {
   TemporalMatchReport r;
   const TemporalParams& tp = temporal.params();
   // Larger windows for narrowed misses (TemporalParams::fallback_larger_windows).

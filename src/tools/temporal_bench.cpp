@@ -2,8 +2,9 @@
 // SGBM) on a generated surgical sequence.
 // For every frame of a synthetic 960x540 sequence (instrument, highlights, noise) it runs, on the
 // same rectified gray frames in the same process:
-//   1. RobustMatcher with temporal priors (TemporalTracker: priors, fusion, coverage),
-//   2. RobustMatcher without priors (full range every frame; its own coverage),
+//   1. Pipeline::process with the preset's temporal priors (priors, fusion, coverage), as the CLI
+//      and the nodelet run it (the gray pair as mono8, already rectified),
+//   2. the same Pipeline without priors (full range every frame; its own coverage),
 //   3. OpenCV StereoSGBM (MODE_SGBM, blockSize 5, the same disparity range),
 // and reports steady-state time per frame, bad2 among output pixels (against the exact ground
 // truth, pixels seen by both cameras), density, and the share of central-region pixels updated
@@ -326,26 +327,35 @@ int main(int argc, char** argv) {
   cv::setNumThreads(threads);
   if (pipeline_stages) return runPipelineStages(scene, pp, frames, warmup, pipeline_cloud,
                                                  async_quality);
-  endo_stereo::TemporalParams with = pp.temporal, without = pp.temporal;
-  with.enabled = true;
-  without.enabled = false;
-  endo_stereo::RobustMatcher matcher_with(pp.matcher, pp.filter);
-  endo_stereo::RobustMatcher matcher_without(pp.matcher, pp.filter);
-  endo_stereo::TemporalTracker tracker_with(with), tracker_without(without);
+  // Ours as users run it: Pipeline::process on the gray pair (already rectified, mono8), with the
+  // preset's priors and with priors off; fused output and coverage on.
+  endo_stereo::PipelineParams with = pp, without = pp;
+  for (endo_stereo::PipelineParams* q : {&with, &without}) {
+    q->rectify.mode = endo_stereo::RectifyMode::kPassThrough;
+    q->output.point_cloud = false;
+    q->output.fused = true;
+    q->output.coverage = true;
+  }
+  with.temporal.enabled = true;
+  without.temporal.enabled = false;
+  endo_stereo::Pipeline pipeline_with(with), pipeline_without(without);
+  pipeline_with.setColorOutput(false);
+  pipeline_without.setColorOutput(false);
+  endo_stereo::PipelineOutput out_with, out_without;
+  std::string error;
   const int num_disp = ((pp.matcher.max_disparity - pp.matcher.min_disparity + 1 + 15) / 16) * 16;
   cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(pp.matcher.min_disparity, num_disp, 5,
                                                         8 * 25, 32 * 25, 1, 0, 10, 100, 1,
                                                         cv::StereoSGBM::MODE_SGBM);
 
   Timing t_with, t_without, t_sgbm;
-  // --stages: begin, prepare, search, edge, filters, compute's rest, second search, end, total.
-  Timing stage_ms[9];
+  // --stages: priors and temporal update, prepare, search, edge, filters, the rest, total.
+  Timing stage_ms[7];
   Score s_with, s_without, s_sgbm, s_fused, s_with_narrowed, s_with_full;
   int64_t narrowed = 0, hits = 0, fallbacks = 0, deferred = 0, searched = 0;
   double width_sum = 0;
   int width_frames = 0;
   endo_stereo::SurgicalFrame frame;
-  endo_stereo::MatchResult res_with, res_without;
   cv::Mat picture_left, picture_disp, picture_fused;
   std::vector<double> frame_ms_with;
   int64_t breakdown_with[4] = {0, 0, 0, 0}, breakdown_without[4] = {0, 0, 0, 0};
@@ -355,43 +365,42 @@ int main(int argc, char** argv) {
     cv::cvtColor(frame.left, l, cv::COLOR_BGR2GRAY);
     cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
     const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
-    const endo_stereo::TemporalFrameInfo info{l.size(), frame.stamp_s, 0, pp.matcher.min_disparity,
-                                              pp.matcher.max_disparity, l};
-    // 1. with priors (timed: range building + matching + post-filter + prior/fusion/coverage update)
+    const endo_stereo::StereoInput in{l, r, "mono8", "mono8", frame.stamp_s};
+    // 1. with priors: the whole Pipeline::process call
     auto t0 = std::chrono::steady_clock::now();
-    const endo_stereo::SearchRange* range = tracker_with.beginFrame(info);
-    const double ms_begin = msSince(t0);
-    matcher_with.compute(l, r, res_with, range);
-    const double ms_computed = msSince(t0);
-    // The stage split is that of the search with priors, also when a second search follows.
-    const double st_prepare = res_with.stats.prepare_ms, st_edge = res_with.stats.edge_ms;
-    const double st_match = res_with.stats.match_ms, st_filter = res_with.stats.filter_ms;
-    if (range && tracker_with.rejectPriors(res_with.disparity)) matcher_with.compute(l, r, res_with, nullptr);
-    const double ms_rejected = msSince(t0);
-    tracker_with.endFrame(res_with.disparity, true, true);
-    const double ms_with = msSince(t0);
-    if (i >= warmup) {
-      stage_ms[0].ms.push_back(ms_begin);
-      stage_ms[1].ms.push_back(st_prepare);
-      stage_ms[2].ms.push_back(st_match - st_prepare - st_edge);
-      stage_ms[3].ms.push_back(st_edge);
-      stage_ms[4].ms.push_back(st_filter);
-      stage_ms[5].ms.push_back(ms_computed - ms_begin - st_match - st_filter);
-      stage_ms[6].ms.push_back(ms_rejected - ms_computed);
-      stage_ms[7].ms.push_back(ms_with - ms_rejected);
-      stage_ms[8].ms.push_back(ms_with);
+    if (!pipeline_with.process(in, out_with, &error)) {
+      std::cerr << "frame " << i << ": " << error << "\n";
+      return 1;
     }
+    const double ms_with = msSince(t0);
+    const endo_stereo::MatchResult& res_with = out_with.match;
+    if (i >= warmup) {
+      const endo_stereo::MatchStats& st = res_with.stats;
+      stage_ms[0].ms.push_back(out_with.temporal_ms);
+      stage_ms[1].ms.push_back(st.prepare_ms);
+      stage_ms[2].ms.push_back(st.match_ms - st.prepare_ms - st.edge_ms);
+      stage_ms[3].ms.push_back(st.edge_ms);
+      stage_ms[4].ms.push_back(st.filter_ms);
+      stage_ms[5].ms.push_back(ms_with - out_with.temporal_ms - st.match_ms - st.filter_ms);
+      stage_ms[6].ms.push_back(ms_with);
+    }
+    // The range this frame searched (the tracker keeps it until the next frame).
+    const endo_stereo::SearchRange* range =
+        out_with.priors_used ? &pipeline_with.temporal().range() : nullptr;
     // 2. without priors
     double ms_without = 0;
     if (run_without) {
       t0 = std::chrono::steady_clock::now();
-      tracker_without.beginFrame(info);
-      matcher_without.compute(l, r, res_without, nullptr);
-      tracker_without.endFrame(res_without.disparity, false, true);
+      if (!pipeline_without.process(in, out_without, &error)) {
+        std::cerr << "frame " << i << ": " << error << "\n";
+        return 1;
+      }
       ms_without = msSince(t0);
     } else {
-      res_without.disparity = cv::Mat(l.size(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
+      out_without.match.disparity =
+          cv::Mat(l.size(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
     }
+    const endo_stereo::MatchResult& res_without = out_without.match;
     // 3. SGBM
     double ms_sgbm = 0;
     cv::Mat d_sgbm;
@@ -415,9 +424,9 @@ int main(int argc, char** argv) {
       s_with_full.add(res_with.disparity, frame.gt_disparity, nonocc & full);
     }
     s_without.add(res_without.disparity, frame.gt_disparity, nonocc);
-    s_fused.add(tracker_with.fusion().disparity(), frame.gt_disparity, nonocc);
+    s_fused.add(out_with.fused_disparity, frame.gt_disparity, nonocc);
     if (run_sgbm) s_sgbm.add(d_sgbm, frame.gt_disparity, nonocc);
-    const endo_stereo::TemporalPriorStats& ps = tracker_with.prior().stats();
+    const endo_stereo::TemporalPriorStats& ps = out_with.prior_stats;
     if (range) {
       narrowed += ps.narrowed_pixels;
       hits += ps.prior_hits;
@@ -457,7 +466,7 @@ int main(int argc, char** argv) {
     if (i == picture_frame) {
       picture_left = frame.left.clone();
       picture_disp = endo_stereo::colorizeDisparity(res_with.disparity, dmin, dmax);
-      picture_fused = endo_stereo::colorizeDisparity(tracker_with.fusion().disparity(), dmin, dmax);
+      picture_fused = endo_stereo::colorizeDisparity(out_with.fused_disparity, dmin, dmax);
     }
     Score this_frame, this_frame_without;
     this_frame.add(res_with.disparity, frame.gt_disparity, nonocc);
@@ -482,8 +491,8 @@ int main(int argc, char** argv) {
                    st.filter_ms);
     }
   }
-  const endo_stereo::CoverageStats cov_with = tracker_with.coverage().stats();
-  const endo_stereo::CoverageStats cov_without = tracker_without.coverage().stats();
+  const endo_stereo::CoverageStats cov_with = pipeline_with.temporal().coverage().stats();
+  const endo_stereo::CoverageStats cov_without = pipeline_without.temporal().coverage().stats();
 
   char buf[8192];
   std::snprintf(buf, sizeof(buf),
@@ -521,14 +530,14 @@ int main(int argc, char** argv) {
                 cov_without.central_never);
   std::cout << buf;
   if (stages) {
-    static const char* const names[9] = {
-        "ranges from the priors (beginFrame)", "matcher: preparation (buffers, views, integrals)",
-        "matcher: search (all window sizes)", "matcher: edge measure", "matcher: post-filters",
-        "matcher: rest (counts, buffers)", "second search (priors rejected: scene change)",
-        "prior / fusion / coverage update (endFrame)", "total with priors"};
+    static const char* const names[7] = {
+        "priors, fusion, coverage (temporal stage)", "matcher: preparation (buffers, views, integrals)",
+        "matcher: search (all passes, all window sizes)", "matcher: edge measure",
+        "matcher: post-filters", "the rest (pre-processing, conversions, counts)",
+        "total with priors (Pipeline::process)"};
     std::printf("stages of a frame with priors, median of frames %d..%d (ms; the medians do not add "
                 "up exactly):\n", warmup, frames - 1);
-    for (int k = 0; k < 9; ++k) std::printf("  %-50s %7.2f\n", names[k], stage_ms[k].median());
+    for (int k = 0; k < 7; ++k) std::printf("  %-50s %7.2f\n", names[k], stage_ms[k].median());
   }
   if (breakdown) {
     std::printf("bad pixels after warm-up (instrument edge, highlight, instrument, other): with priors "
@@ -542,10 +551,10 @@ int main(int argc, char** argv) {
     json << buf;
     bool ok = static_cast<bool>(json);
     ok &= cv::imwrite(out_dir + "/coverage.png",
-                      labelled(tracker_with.coverage().colorImage(),
+                      labelled(pipeline_with.temporal().coverage().colorImage(),
                                "longest run without update (0 .. 20+ frames)"));
     ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
-                      labelled(tracker_without.coverage().colorImage(),
+                      labelled(pipeline_without.temporal().coverage().colorImage(),
                                "no priors: longest run without update"));
     cv::Mat row;
     cv::hconcat(std::vector<cv::Mat>{labelled(picture_left, "input (left)"),

@@ -524,7 +524,7 @@ TEST_F(PipelineTest, TemporalMatcherWithoutASecondPassEqualsOneMatcherCall) {
       EXPECT_EQ(range != nullptr, f > 0);
       direct.compute(s.left, s.right, a, range);
       TemporalMatchReport report;
-      matcher.compute(s.left, s.right, tracker, info, range, b, &report);
+      matcher.compute(s.left, s.right, tracker, range, b, &report);
       tracker.endFrame(b.disparity, false, false);
       EXPECT_TRUE(sameMatch(a, b)) << "larger windows " << larger << ", frame " << f;
       if (f > 0) {

@@ -35,7 +35,7 @@
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reset_reason);
  *   // TemporalMatcher::compute(): the pass with range (nullptr = the full range),
  *   // rejectPriors() (a cut: the frame again over the full range), the post-filter.
- *   temporal_matcher.compute(left, right, temporal, info, range, match);
+ *   temporal_matcher.compute(left, right, temporal, range, match);
  *   temporal.endFrame(match.disparity, want_fused, want_coverage);
  *   // temporal.prior().stats(), temporal.fusion().disparity() / age(),
  *   // temporal.coverage().longestRun(), temporal.coverage().stats(), coverage().colorImage()
@@ -398,6 +398,9 @@ class TemporalTracker {
   const CoverageTracker& coverage() const { return coverage_; }
   /// Whether the range returned by the latest beginFrame() was non-null.
   bool priorsUsed() const { return priors_used_; }
+  /// The narrowed range of the latest beginFrame() (meaningful while priorsUsed()), kept until
+  /// the next beginFrame().
+  const SearchRange& range() const { return range_; }
 
  private:
   TemporalParams params_;

@@ -18,7 +18,7 @@
  * Use (what Pipeline does per frame):
  * @code
  *   const endo_stereo::SearchRange* range = temporal.beginFrame(info, &reason);
- *   matcher.compute(left, right, temporal, info, range, result, &report);
+ *   matcher.compute(left, right, temporal, range, result, &report);
  *   temporal.endFrame(result.disparity, want_fused, want_coverage);
  * @endcode
  *
@@ -55,14 +55,12 @@ class TemporalMatcher {
   /**
    * Match one frame as the file comment says.
    * @param temporal the tracker, between beginFrame() (which returned @p range) and endFrame().
-   * @param info     as given to beginFrame().
    * @param range    beginFrame()'s result (nullptr = full range).
    * @param out      disparity, codes, confidence and stats (match_ms covers all passes).
    * @throws std::invalid_argument as RobustMatcher::compute().
    */
   void compute(const cv::Mat& left, const cv::Mat& right, TemporalTracker& temporal,
-               const TemporalFrameInfo& info, const SearchRange* range, MatchResult& out,
-               TemporalMatchReport* report = nullptr);
+               const SearchRange* range, MatchResult& out, TemporalMatchReport* report = nullptr);
 
  private:
   MatcherParams matcher_params_;
