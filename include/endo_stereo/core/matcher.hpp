@@ -99,10 +99,10 @@ struct MatcherParams {
   /// Reject a pixel whose accepting window (widened by edge_margin_px) holds accepted disparities
   /// more than this below its own: its window straddles a depth edge and it may carry the nearer
   /// surface's disparity (foreground fattening). px, >= 0; 0 switches the whole test off.
-  double edge_disparity_jump_px = 2.0;
+  double edge_disparity_jump_px = 3.0;
   /// The same test for accepted disparities above the pixel's own (it may carry the farther
   /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
-  double edge_disparity_jump_above_px = 4.0;
+  double edge_disparity_jump_above_px = 6.0;
   /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16]. 7 with the
   /// 9 px first window (a wider window fattens further).
   int edge_margin_px = 7;
