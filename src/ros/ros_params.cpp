@@ -126,6 +126,16 @@ std::string RosParams::validate() const {
   return m.str();
 }
 
+FrameSchedulerParams RosParams::scheduler() const {
+  FrameSchedulerParams p;
+  p.backlog_pairs = backlog_pairs;
+  p.backlog_max_age_s = backlog_max_age_s;
+  p.restart_jump_back_s = restart_jump_back_s;
+  p.unpaired_timeout_s = unpaired_timeout_s;
+  p.no_input_warn_s = no_input_warn_s;
+  return p;
+}
+
 std::string loadPipelineParamsFromRos(const ros::NodeHandle& pnh, PipelineParams& params) {
   PipelineParams p = params;
   std::string config_file;

@@ -42,7 +42,9 @@
  *   short stall such as the first frame's full-range search is caught up without loss; a pair
  *   that waited longer than `~backlog_max_age_s` is skipped. When frames come faster than they
  *   are processed it takes the newest and skips the others. Pairs pushed out of a full backlog
- *   or skipped are counted as dropped. Nothing queues without limit.
+ *   or skipped are counted as dropped. Nothing queues without limit. This policy, its counters,
+ *   the stamp order and the silence and unpaired-image reports are FrameScheduler's
+ *   (core/frame_scheduler.hpp), which this class drives under one mutex.
  * - Bad input (sizes, encodings, camera_info, stamps) is reported by a throttled error naming the
  *   problem, counted as rejected, and the next good pair is processed.
  * - A frozen camera (a view whose image is bit-identical to its previous one for
@@ -64,6 +66,11 @@
  * Thread safety: setPipelineParams(), pipelineParams() and counters() may be called from any
  * thread; the class owns one processing thread and ROS callbacks run on the caller's callback
  * queues.
+ *
+ * Sources, one per concern: reconstruction.cpp (construction, the callbacks, the processing
+ * thread), reconstruction_inputs.cpp (lazy subscription, camera_info, the checks of a pair),
+ * reconstruction_outputs.cpp (advertising and publishing), reconstruction_diagnostics.cpp
+ * (/diagnostics and the silence explanation), reconstruction_step_check.cpp (views out of step).
  */
 #pragma once
 
@@ -90,6 +97,7 @@
 #include <tf2_ros/transform_listener.h>
 
 #include "endo_stereo/core/frame_offset_detector.hpp"
+#include "endo_stereo/core/frame_scheduler.hpp"
 #include "endo_stereo/core/pipeline.hpp"
 #include "endo_stereo/ros/frozen_views.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
@@ -145,7 +153,8 @@ class Reconstruction {
     sensor_msgs::CameraInfoConstPtr left_info, right_info;
     ros::WallTime arrival;
   };
-  struct Published;  // outputs converted for publishing (reconstruction.cpp)
+  /// Throttle period of input error messages, s: often enough to notice, rare enough for a flood.
+  static constexpr double kThrottleS = 5.0;
 
   void connectCb();
   void subscribeInputs();
@@ -154,7 +163,8 @@ class Reconstruction {
   void pairCb(const sensor_msgs::ImageConstPtr& left, const sensor_msgs::ImageConstPtr& right);
   void infoCb(bool left, const sensor_msgs::CameraInfoConstPtr& msg);
   void workerLoop();
-  void processPair(const Pair& pair);
+  /// @return true when the pair was processed and published, false when it was rejected.
+  bool processPair(const Pair& pair);
   /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
   bool withholdFrozen(const Pair& pair);
   /// Feeds a formed pair to the out-of-step check (step_); logs a verdict that changed.
@@ -162,8 +172,9 @@ class Reconstruction {
   /// A new stream (@p forget: the verdict too) or a reset temporal state (the verdict holds until
   /// the new check gives one): the out-of-step check starts again.
   void restartStepCheck(bool forget);
-  /// After a frame whose temporal state was reset: count it, and log a geometry change once.
-  void noteTemporalReset();
+  /// After a frame (stamped @p stamp) whose temporal state was reset: count it, and log a
+  /// geometry change once.
+  void noteTemporalReset(const ros::Time& stamp);
   static std::string describeCalibrationChange(const StereoCalibration& before,
                                                const StereoCalibration& after);
   bool checkPair(const Pair& pair, std::string* error);
@@ -172,6 +183,7 @@ class Reconstruction {
   /// @p depth_ok is false).
   void publishRgbd(const std_msgs::Header& header, const PipelineOutput& out,
                    const RectifiedGeometry& g, bool depth_ok);
+  /// Logs (throttled) and keeps as the last error a refused pair; the caller counts it.
   void reject(const std::string& what, const std::string& error);
   void diagnose(diagnostic_updater::DiagnosticStatusWrapper& stat);
   bool needsCameraInfo() const;
@@ -210,27 +222,19 @@ class Reconstruction {
   std::vector<std::string> outputs_;  // the outputs advertised (relative names), for describe()
   std::string outputs_note_;          // why some were not advertised ("" when all were)
 
-  // --- Latest camera_info per side and arrival bookkeeping (info_mutex_).
+  // --- Latest camera_info per side (info_mutex_).
   mutable std::mutex info_mutex_;
   std::condition_variable info_cv_;  // a camera_info arrived, or shutting down
   bool info_stopping_ = false;
   sensor_msgs::CameraInfoConstPtr left_info_, right_info_;
-  ros::WallTime last_left_arrival_, last_right_arrival_;
-  ros::WallTime left_unpaired_since_, right_unpaired_since_;  // first image since the last pair
-  ros::WallTime subscribed_since_;  // when the inputs were last subscribed
-  ros::Time last_left_stamp_, last_right_stamp_;
 
-  // --- The bounded backlog between the callbacks and the processing thread (oldest first).
-  std::mutex backlog_mutex_;
-  std::condition_variable backlog_cv_;
-  std::deque<Pair> backlog_;
-  ros::WallTime last_pair_arrival_;
-  std::deque<double> pair_intervals_ms_;  // the last few intervals between pairs
+  // --- The scheduler (sched_mutex_): image arrivals, the bounded backlog between the callbacks
+  // and the processing thread, the drop policy and its counters, stamp order, silence.
+  mutable std::mutex sched_mutex_;
+  std::condition_variable sched_cv_;  // a pair waits, or shutting down
+  FrameScheduler<Pair> scheduler_;
   bool shutdown_ = false;
   std::thread worker_;
-  // Worker thread only: the last few processing times, pairs processed (the overload test).
-  std::deque<double> busy_ms_;
-  int64_t processed_since_start_ = 0;
 
   // --- Parameters (params_mutex_): current and pending (swapped in between frames).
   mutable std::mutex params_mutex_;
@@ -242,16 +246,15 @@ class Reconstruction {
   PipelineOutput out_;
   StereoCalibration calibration_;
   bool has_calibration_ = false;
-  ros::Time last_stamp_;
   bool warned_not_metric_ = false;
   bool warned_no_depth_ = false;  // the RGB-D outputs were withheld (geometry not metric)
   cv::Mat depth_;                 // depth image buffer, reused between frames
   bool first_pair_logged_ = false;  // the first pair's timings went to the log
   std::string geometry_change_;     // a camera_info change not yet logged (describeCalibrationChange)
 
-  // --- Figures (stats_mutex_).
+  // --- Figures (stats_mutex_); the pair counts are the scheduler's.
   mutable std::mutex stats_mutex_;
-  ReconstructionCounters counters_;
+  int64_t tf_failures_ = 0, geometry_changes_ = 0, temporal_resets_ = 0;
   std::deque<double> latencies_ms_;  // latest latencies, arrival -> published
   std::deque<double> pipeline_ms_;   // latest Pipeline::process() times
   double last_density_ = 0.0;
@@ -264,9 +267,8 @@ class Reconstruction {
   ros::WallTime last_error_time_;
   ReconstructionCounters diag_prev_;
   ros::WallTime diag_prev_time_;
-  // Silence (diagnostics thread only): the last explanation and when it was made and logged.
+  // Silence (diagnostics thread only): the last explanation (FrameScheduler says when it is due).
   std::string silence_message_;
-  ros::WallTime silence_explained_, silence_logged_;
 
   // --- Frozen cameras: checked on every pair formed (callback threads); a freeze that ended asks
   // the processing thread for a temporal reset before its next pair.

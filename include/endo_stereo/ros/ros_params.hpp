@@ -19,6 +19,7 @@
 
 #include <ros/node_handle.h>
 
+#include "endo_stereo/core/frame_scheduler.hpp"
 #include "endo_stereo/core/pipeline.hpp"
 
 namespace endo_stereo {
@@ -94,6 +95,8 @@ struct RosParams {
 
   /// @return "" when valid, else a message naming the field and its accepted range.
   std::string validate() const;
+  /// The frame scheduler's share of these settings (backlog, stamp order, unpaired, silence).
+  FrameSchedulerParams scheduler() const;
 };
 
 /**
