@@ -145,22 +145,40 @@ endo_stereo::PipelineParams loadPreset(const std::string& root, const std::strin
   return p;
 }
 
+// Ours as users run it: Pipeline::process on the gray pair (already rectified, mono8). Without
+// @p keep_priors every call is the first frame of a stream (what endo_stereo_cli does with a single
+// pair: the full search); with it the pipeline keeps its temporal state from call to call, 40 ms
+// apart, so that after the first call the same pair is matched again with narrowed ranges (a
+// still scene in steady state).
 Method ourMethod(const std::string& name, const endo_stereo::PipelineParams& preset,
-                 int threads = 0) {
-  auto matcher = std::make_shared<std::unique_ptr<endo_stereo::RobustMatcher>>();
-  auto result = std::make_shared<endo_stereo::MatchResult>();
+                 int threads = 0, bool keep_priors = false) {
+  auto pipeline = std::make_shared<std::unique_ptr<endo_stereo::Pipeline>>();
+  auto out = std::make_shared<endo_stereo::PipelineOutput>();
+  auto stamp = std::make_shared<double>(0.0);
   Method m;
   m.name = name;
   m.prepare = [=](const Scene& s) {
-    endo_stereo::MatcherParams mp = preset.matcher;
-    mp.min_disparity = s.min_disparity;
-    mp.max_disparity = s.min_disparity + s.num_disparities - 1;
-    mp.num_threads = threads;
-    *matcher = std::make_unique<endo_stereo::RobustMatcher>(mp, preset.filter);
+    endo_stereo::PipelineParams p = preset;
+    p.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
+    p.output.point_cloud = false;
+    p.output.fused = false;
+    p.output.coverage = false;
+    p.matcher.min_disparity = s.min_disparity;
+    p.matcher.max_disparity = s.min_disparity + s.num_disparities - 1;
+    p.matcher.num_threads = threads;
+    *pipeline = std::make_unique<endo_stereo::Pipeline>(p);
+    (*pipeline)->setColorOutput(false);
+    *stamp = 0.0;
   };
   m.compute = [=](const Scene& s, cv::Mat& disparity) {
-    (*matcher)->compute(s.left, s.right, *result);
-    disparity = result->disparity;
+    if (!keep_priors) (*pipeline)->reset();
+    const endo_stereo::StereoInput in{s.left, s.right, "mono8", "mono8", *stamp};
+    *stamp += 0.04;
+    std::string error;
+    if (!(*pipeline)->process(in, *out, &error)) {
+      throw std::runtime_error(s.name + ": " + error);
+    }
+    disparity = out->match.disparity;
   };
   return m;
 }
@@ -421,7 +439,7 @@ long peakRssKib() {
   return -1;
 }
 
-// Child side: `--rss-probe OUT LEFT RIGHT MIN MAX MODE [GT.pfm]`, MODE full | prior | sgbm. Loads
+// Child side: `--rss-probe OUT LEFT RIGHT MIN MAX MODE`, MODE full | prior | sgbm | none. Loads
 // the pair, matches it three times, writes its peak RSS (KiB) to OUT and exits.
 int rssProbe(int argc, char** argv) {
   if (argc < 8) return 2;
@@ -441,20 +459,22 @@ int rssProbe(int argc, char** argv) {
     cv::Mat raw;
     for (int i = 0; i < 3; ++i) sgbm->compute(left, right, raw);
   } else {
-    endo_stereo::RobustMatcher matcher(mp, endo_stereo::PostFilterParams{});
-    endo_stereo::MatchResult result;
-    endo_stereo::SearchRange range;
-    if (mode == "prior") {
-      if (argc < 9) return 2;
-      const cv::Mat gt = endo_stereo::readPfm(argv[8]);
-      if (gt.empty()) return 3;
-      cv::Mat rounded;
-      gt.convertTo(rounded, CV_16S);  // rounds to nearest
-      range.lo = rounded - 4;
-      range.hi = rounded + 4;
+    // Ours through Pipeline with the built-in defaults: "full" matches each pair as a first
+    // frame (priors off), "prior" keeps the priors, so that the second and third calls search
+    // narrowed ranges around the previous call's disparities.
+    endo_stereo::PipelineParams p;
+    p.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
+    p.output.point_cloud = false;
+    p.matcher.min_disparity = mp.min_disparity;
+    p.matcher.max_disparity = mp.max_disparity;
+    p.temporal.enabled = mode == "prior";
+    endo_stereo::Pipeline pipeline(p);
+    pipeline.setColorOutput(false);
+    endo_stereo::PipelineOutput out;
+    std::string error;
+    for (int i = 0; i < 3; ++i) {
+      if (!pipeline.process({left, right, "mono8", "mono8", 0.04 * i}, out, &error)) return 3;
     }
-    for (int i = 0; i < 3; ++i)
-      matcher.compute(left, right, result, range.empty() ? nullptr : &range);
   }
   std::ofstream(argv[2]) << peakRssKib() << "\n";
   return 0;
@@ -605,33 +625,10 @@ int main(int argc, char** argv) {
                                 ourMethod("ours full search, 1 thread", preset_default, 1),
                                 sgbmMethod("OpenCV SGBM"),
                                 sgbmMethod("OpenCV SGBM 3WAY", 10, cv::StereoSGBM::MODE_SGBM_3WAY)};
-  // Ours with a per-pixel range of +-4 px around the known disparity (what the temporal priors
-  // give in steady state).
-  {
-    endo_stereo::SearchRange range;
-    cv::Mat rounded;
-    big.gt.convertTo(rounded, CV_16S);
-    range.lo = rounded - 4;
-    range.hi = rounded + 4;
-    for (int threads : {2, 1}) {
-      auto matcher = std::make_shared<std::unique_ptr<endo_stereo::RobustMatcher>>();
-      auto result = std::make_shared<endo_stereo::MatchResult>();
-      Method m;
-      m.name = std::string("ours +-4 px range, ") + (threads == 2 ? "2 threads" : "1 thread");
-      m.prepare = [=](const Scene& s) {
-        endo_stereo::MatcherParams mp = preset_default.matcher;
-        mp.min_disparity = s.min_disparity;
-        mp.max_disparity = s.min_disparity + s.num_disparities - 1;
-        mp.num_threads = threads;
-        *matcher = std::make_unique<endo_stereo::RobustMatcher>(mp, preset_default.filter);
-      };
-      m.compute = [=](const Scene& s, cv::Mat& disparity) {
-        (*matcher)->compute(s.left, s.right, *result, &range);
-        disparity = result->disparity;
-      };
-      timing.push_back(m);
-    }
-  }
+  // Ours with priors in steady state: the same pair again, 40 ms later, its previous disparities
+  // narrowing the search (+-4 px around each, temporal.prior_radius_px).
+  timing.push_back(ourMethod("ours, priors (same pair again), 2 threads", preset_default, 2, true));
+  timing.push_back(ourMethod("ours, priors (same pair again), 1 thread", preset_default, 1, true));
   const int timing_repeats = std::max(o.repeats, o.quick ? 1 : 7);
   const std::vector<Row> timing_rows = runScene(big, timing, timing_repeats);
   std::printf(
@@ -661,25 +658,23 @@ int main(int argc, char** argv) {
       const std::string d(dir);
       cv::imwrite(d + "/l.png", big.left);
       cv::imwrite(d + "/r.png", big.right);
-      endo_stereo::writePfm(d + "/gt.pfm", big.gt);
       const std::string lo = std::to_string(big.min_disparity);
       const std::string hi = std::to_string(big.min_disparity + big.num_disparities - 1);
       const std::string rss = d + "/rss.txt";
       const double rss_full = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "full"});
-      const double rss_prior =
-          probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "prior", d + "/gt.pfm"});
+      const double rss_prior = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "prior"});
       const double rss_sgbm = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
       const double rss_base = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "none"});
       std::printf(
           "\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
-          "ours +-4 px %.1f MiB, OpenCV SGBM %.1f MiB (the same process loading the images "
+          "ours with priors (the pair three times) %.1f MiB, OpenCV SGBM %.1f MiB (the same process loading the images "
           "without matching: %.1f MiB)\n",
           big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm, rss_base);
       j.key("peak_rss_mib").beginObject();
       j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
       j.key("sgbm").value(rss_sgbm).key("baseline_no_matching").value(rss_base);
       j.endObject();
-      for (const char* f : {"/l.png", "/r.png", "/gt.pfm"}) std::remove((d + f).c_str());
+      for (const char* f : {"/l.png", "/r.png"}) std::remove((d + f).c_str());
       ::rmdir(dir);
     }
   }
