@@ -39,6 +39,7 @@ Reconstruction::Reconstruction(const ros::NodeHandle& nh, const ros::NodeHandle&
       it_(nh),
       scheduler_(schedulerParams(ros_params)),
       params_(params),
+      view_offset_(ros_params.right_frame_offset),
       updater_(nh, pnh, name) {
   const std::string e = params.validate();
   if (!e.empty()) throw std::invalid_argument(e);
@@ -197,6 +198,7 @@ void Reconstruction::pairCb(const sensor_msgs::ImageConstPtr& left,
     std::lock_guard<std::mutex> lock(sched_mutex_);
     scheduler_.pairFormed();
   }
+  if (!compensateOffset(pair)) return;
   checkStep(pair);
   if (withholdFrozen(pair)) return;
   {
@@ -306,6 +308,26 @@ void Reconstruction::noteTemporalReset(const ros::Time& stamp) {
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++temporal_resets_;
   last_reset_reason_ = out_.reset_reason;
+}
+
+bool Reconstruction::compensateOffset(Pair& pair) {
+  if (view_offset_.offset() == 0) return true;
+  View left{pair.left, pair.left_info}, right{pair.right, pair.right_info};
+  bool ready = false;
+  {
+    std::lock_guard<std::mutex> lock(offset_mutex_);
+    ready = view_offset_.push(pair.left->header.stamp.toSec(), left, right);
+  }
+  if (!ready) {
+    std::lock_guard<std::mutex> lock(sched_mutex_);
+    scheduler_.withhold();
+    return false;
+  }
+  pair.left = left.image;
+  pair.left_info = left.info;
+  pair.right = right.image;
+  pair.right_info = right.info;
+  return true;
 }
 
 bool Reconstruction::withholdFrozen(const Pair& pair) {

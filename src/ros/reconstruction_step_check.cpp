@@ -63,7 +63,8 @@ void Reconstruction::checkStep(const Pair& pair) {
         << (offset > 0 ? "late" : "early") << " against " << nh_.resolveName(left_topic_)
         << " (offset " << (offset > 0 ? "+" : "") << offset << ": left frame t matches right frame t"
         << (offset > 0 ? "+" : "") << offset << " best); disparities on a moving scene are "
-        << "wrong: check the capture cards' synchronisation";
+        << "wrong: check the capture cards' synchronisation, or set ~right_frame_offset to "
+        << view_offset_.offset() + offset << " to compensate";
       warn = m.str();
     } else if (offset == 0 && step_warned_offset_ != 0) {
       info = "views in step again (left frame t matches right frame t best)";

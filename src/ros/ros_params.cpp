@@ -122,6 +122,8 @@ std::string RosParams::validate() const {
   } else if (step_check_period_frames < 0 || step_check_period_frames > 100000) {
     m << "step_check_period_frames: must be in [0, 100000] (0 = off), got "
       << step_check_period_frames;
+  } else if (right_frame_offset < -5 || right_frame_offset > 5) {
+    m << "right_frame_offset: must be in [-5, 5] frames (0 = off), got " << right_frame_offset;
   }
   return m.str();
 }
@@ -187,6 +189,7 @@ void forEachRosParam(RosParams& p, F&& f) {
   f("no_input_warn_s", &p.no_input_warn_s);
   f("freeze_frames", &p.freeze_frames);
   f("step_check_period_frames", &p.step_check_period_frames);
+  f("right_frame_offset", &p.right_frame_offset);
   f("preset", &p.preset);
 }
 

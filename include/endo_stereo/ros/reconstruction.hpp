@@ -99,6 +99,7 @@
 #include "endo_stereo/core/frame_offset_detector.hpp"
 #include "endo_stereo/core/frame_scheduler.hpp"
 #include "endo_stereo/core/pipeline.hpp"
+#include "endo_stereo/core/view_offset.hpp"
 #include "endo_stereo/ros/frozen_views.hpp"
 #include "endo_stereo/ros/ros_params.hpp"
 
@@ -165,6 +166,9 @@ class Reconstruction {
   void workerLoop();
   /// @return true when the pair was processed and published, false when it was rejected.
   bool processPair(const Pair& pair);
+  /// ~right_frame_offset: re-pairs the views (view_offset_); @return false when the pair is held
+  /// (counted as withheld), true with @p pair holding the views to match.
+  bool compensateOffset(Pair& pair);
   /// Checks a formed pair for a frozen view (frozen_views_); @return true when it is withheld.
   bool withholdFrozen(const Pair& pair);
   /// Feeds a formed pair to the out-of-step check (step_); logs a verdict that changed.
@@ -273,6 +277,13 @@ class Reconstruction {
   // --- Frozen cameras: checked on every pair formed (callback threads); a freeze that ended asks
   // the processing thread for a temporal reset before its next pair.
   std::unique_ptr<FrozenViews> frozen_views_;
+  /// One view of a pair, as ~right_frame_offset re-pairs them.
+  struct View {
+    sensor_msgs::ImageConstPtr image;
+    sensor_msgs::CameraInfoConstPtr info;
+  };
+  std::mutex offset_mutex_;  // guards view_offset_ (pair callbacks)
+  ViewOffset<View> view_offset_;
   std::atomic<bool> temporal_reset_pending_{false};
 
   // --- Views out of step: every formed pair goes to the check (callback threads; step_mutex_),

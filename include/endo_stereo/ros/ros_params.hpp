@@ -89,6 +89,11 @@ struct RosParams {
   /// is warned about (log and diagnostics) with its offset in frames. In [0, 100000]; 0 = off;
   /// values below 50 mean 50. 250 = 10 s at 25 fps.
   int step_check_period_frames = 250;
+  /// Compensation of views out of step by a constant number of frames (view_offset.hpp): the
+  /// left image of each pair is matched with the right image that arrives this many pairs later
+  /// (< 0: earlier). Set it to the offset the out-of-step check reports. The output keeps the
+  /// left image's stamp. In [-5, 5]; 0 = off.
+  int right_frame_offset = 0;
   /// Name of the preset the parameters came from, for the start-up line only (the launch files
   /// set it to the YAML file they load; "" = none named).
   std::string preset;
