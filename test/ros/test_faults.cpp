@@ -431,9 +431,10 @@ TEST(GeometryChange, NewCameraInfoMidStreamRebuildsAndResetsOnce) {
   EXPECT_NE(changes[0]->msg.find("temporal state reset"), std::string::npos) << changes[0]->msg;
   EXPECT_NE(changes[1]->msg.find("image size 320x240 -> 384x288"), std::string::npos)
       << changes[1]->msg;
-  const auto it = kv.find("last temporal reset");
-  ASSERT_NE(it, kv.end());
-  EXPECT_NE(it->second.find("size changed"), std::string::npos) << it->second;
+  // The size change reset the temporal state (its own line says why; the diagnostics' "last
+  // temporal reset" may be a later one, a processing gap on a slow machine).
+  EXPECT_NE(changes[1]->msg.find("temporal state reset (image size changed"), std::string::npos)
+      << changes[1]->msg;
   std::printf("[ INFO     ] %s: %d pairs, camera_info changed twice (baseline x1.25, then "
               "320x240 -> 384x288): outputs in 3 runs of one geometry; %g processed, %g "
               "rejected (a pair whose images and camera_info disagree in size), %g dropped; "
