@@ -92,13 +92,13 @@ std::string readBoth(const ros::NodeHandle& pnh, const std::string& name, T* out
 }  // namespace
 
 std::string RosParams::validate() const {
+  // The scheduler's settings (backlog, stamp order, unpaired, silence) are checked by its own
+  // params struct, with the same names and ranges.
+  const std::string scheduler_error = scheduler().validate();
+  if (!scheduler_error.empty()) return scheduler_error;
   std::ostringstream m;
   if (queue_size < 1 || queue_size > 100) {
     m << "queue_size: must be in [1, 100], got " << queue_size;
-  } else if (backlog_pairs < 1 || backlog_pairs > 100) {
-    m << "backlog_pairs: must be in [1, 100], got " << backlog_pairs;
-  } else if (!(backlog_max_age_s > 0.0 && backlog_max_age_s <= 10.0)) {
-    m << "backlog_max_age_s: must be in (0, 10] s, got " << backlog_max_age_s;
   } else if (!(sync_tolerance_s > 0.0 && sync_tolerance_s <= 1.0)) {
     m << "sync_tolerance_s: must be in (0, 1] s, got " << sync_tolerance_s;
   } else if (image_transport.empty()) {
@@ -107,16 +107,10 @@ std::string RosParams::validate() const {
     m << "tf_timeout_s: must be in [0, 10] s, got " << tf_timeout_s;
   } else if (!(diagnostics_period_s >= 0.05 && diagnostics_period_s <= 60.0)) {
     m << "diagnostics_period_s: must be in [0.05, 60] s, got " << diagnostics_period_s;
-  } else if (!(unpaired_timeout_s > 0.0 && unpaired_timeout_s <= 60.0)) {
-    m << "unpaired_timeout_s: must be in (0, 60] s, got " << unpaired_timeout_s;
   } else if (!(camera_info_wait_s >= 0.0 && camera_info_wait_s <= 10.0)) {
     m << "camera_info_wait_s: must be in [0, 10] s, got " << camera_info_wait_s;
-  } else if (!(restart_jump_back_s >= 0.0 && restart_jump_back_s <= 3600.0)) {
-    m << "restart_jump_back_s: must be in [0, 3600] s, got " << restart_jump_back_s;
   } else if (!(subpixel_delta_d > 0.0 && subpixel_delta_d <= 1.0)) {
     m << "subpixel_delta_d: must be in (0, 1] px, got " << subpixel_delta_d;
-  } else if (!(no_input_warn_s > 0.0 && no_input_warn_s <= 3600.0)) {
-    m << "no_input_warn_s: must be in (0, 3600] s, got " << no_input_warn_s;
   } else if (freeze_frames < 0 || freeze_frames > 1000) {
     m << "freeze_frames: must be in [0, 1000] (0 = off), got " << freeze_frames;
   } else if (step_check_period_frames < 0 || step_check_period_frames > 100000) {
