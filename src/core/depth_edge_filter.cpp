@@ -36,8 +36,7 @@ using namespace simd;
 // disparity onto the farther one (the usual foreground fattening, measured as almost all of the
 // remaining errors); above = it may carry the farther surface's disparity into the nearer one's
 // edge (rarer; a looser threshold keeps the density). The margin reaches the last fattened pixels
-// whose own window just misses the surface behind. With edge_window_max_px, pixels accepted with
-// a wider window are also rejected when the w_min test fires. Min and max over each window size are
+// whose own window just misses the surface behind. Min and max over each window size are
 // grey-level erosions/dilations of the map (invalid pixels neutral): O(pixels) per window size.
 // Flagged pixels are rejected, or, with edge_verify_radius_px > 0, verified
 // (everyWindowPrefersOwnDisparity).
@@ -82,10 +81,10 @@ ES_KERNEL void windowMinMax(const cv::Mat& lo_src, const cv::Mat& hi_src, int x0
 /// @p all_levels) and its neighbourhood's least (@p a) or greatest (@p b) disparity straddles its
 /// own (@p d, the map test's condition), else 0. Branch-free (vectorised).
 ES_KERNEL void straddleRow(const uint8_t* c, const uint8_t* k, const float* d, const float* a,
-                           const float* b, int W, int level, bool all_levels, float below,
-                           float above, uint8_t* hits) {
+                           const float* b, int W, int level, float below, float above,
+                           uint8_t* hits) {
   for (int x = 0; x < W; ++x) {
-    const bool mine = (c[x] >= kCodeAcceptedBase) & (all_levels | (k[x] == level));
+    const bool mine = (c[x] >= kCodeAcceptedBase) & (k[x] == level);
     const bool jump = (d[x] - a[x] > below) | (b[x] - d[x] > above);
     hits[x] = static_cast<uint8_t>(mine & jump);
   }
@@ -194,7 +193,6 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
                                                    ? mp.edge_disparity_jump_above_px
                                                    : mp.edge_disparity_jump_px);
   const int margin = mp.edge_margin_px;
-  const int limit_w = mp.edge_window_max_px;
   const float nan = std::numeric_limits<float>::quiet_NaN();
   // Rejections are applied after all window sizes are judged, so every test sees the same map:
   // listed here (a pixel may be listed twice; applying is idempotent). @p reject serves as
@@ -246,12 +244,9 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     }
   }
   for (int level = 1; level < num_levels; ++level) level_count[level] = by_level[level].size();
-  auto levelCount = [&](int level) -> size_t {
-    // The w_min test also serves edge_window_max_px for the pixels of every window size: every
-    // pixel of the map (counted here, not taken from the result's stats, which a merged map,
-    // such as the temporal fallback's, does not carry).
-    return level == 0 && limit_w > 0 ? static_cast<size_t>(H) * W : level_count[level];
-  };
+  // Counted here, not taken from the result's stats, which a merged map (such as the temporal
+  // fallback's) does not carry.
+  auto levelCount = [&](int level) -> size_t { return level_count[level]; };
   auto levelSide = [&](int level) {
     return 2 * ((mp.window_min_px + level * mp.window_step_px) / 2 + margin) + 1;
   };
@@ -299,7 +294,6 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
     const int w = mp.window_min_px + level * mp.window_step_px;
     const int half = w / 2 + margin;
     const int side = levelSide(level);
-    const bool all_levels = level == 0 && limit_w > 0;
     if (levelCount(level) == 0) continue;
     auto judge = [&](int x, int y, float a, float b) {
       const float d = out.disparity.at<float>(y, x);
@@ -311,9 +305,6 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
         } else {
           rejected.push_back(cv::Point(x, y));
         }
-      }
-      if (all_levels && mp.window_min_px + k * mp.window_step_px > limit_w) {
-        rejected.push_back(cv::Point(x, y));
       }
     };
     if (!scanDirectly(level)) {
@@ -346,8 +337,7 @@ void rejectEdgeStraddlers(const MatcherParams& mp, const cv::Mat& left, const cv
             const float* a = lo_map.ptr<float>(y);
             const float* b = hi_map.ptr<float>(y);
             straddleRow(out.code.ptr<uint8_t>(y), window_idx.ptr<uint8_t>(y),
-                        out.disparity.ptr<float>(y), a, b, W, level, all_levels, below, above,
-                        hits.data());
+                        out.disparity.ptr<float>(y), a, b, W, level, below, above, hits.data());
             // Hits are rare.
             forEachSet(hits.data(), W, [&](int x) {
               block_hits[blk].push_back(Hit{x, y, a[x], b[x]});

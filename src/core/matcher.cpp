@@ -320,7 +320,7 @@ void RobustMatcher::compute(const cv::Mat& left, const cv::Mat& right, MatchResu
       },
       num_stripes);
   const auto t_matched = std::chrono::steady_clock::now();
-  if (mp.edge_disparity_jump_px > 0.0 || mp.edge_window_max_px > 0) {
+  if (mp.edge_disparity_jump_px > 0.0) {
     rejectEdgeStraddlers(mp, left, right, num_levels, im.window_idx, out, im.edge_lo_src,
                          im.edge_hi_src, im.edge_lo, im.edge_hi, im.edge_cache);
   }

@@ -50,8 +50,6 @@ std::string MatcherParams::validate() const {
     // from more than 65536 (found by fuzzing), and a huge arena costs memory for nothing.
     msg << "matcher.num_threads = " << num_threads << " must be in [0, " << kMaxNumThreads
         << "] (0 = OpenCV's default)";
-  } else if (edge_window_max_px < 0) {
-    msg << "matcher.edge_window_max_px = " << edge_window_max_px << " must be >= 0 (0 = off)";
   } else if (!(edge_disparity_jump_px >= 0.0) || !std::isfinite(edge_disparity_jump_px)) {
     msg << "matcher.edge_disparity_jump_px = " << edge_disparity_jump_px
         << " must be finite and >= 0 (0 = off)";

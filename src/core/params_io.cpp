@@ -177,8 +177,6 @@ const std::vector<Entry>& table() {
                       &MatcherParams::window_max_narrowed_px));
     t.push_back(field("matcher", "subpixel", &PP::matcher, &MatcherParams::subpixel));
     t.push_back(field("matcher", "num_threads", &PP::matcher, &MatcherParams::num_threads));
-    t.push_back(
-        field("matcher", "edge_window_max_px", &PP::matcher, &MatcherParams::edge_window_max_px));
     t.push_back(field("matcher", "edge_disparity_jump_px", &PP::matcher,
                       &MatcherParams::edge_disparity_jump_px));
     t.push_back(field("matcher", "edge_disparity_jump_above_px", &PP::matcher,
@@ -267,16 +265,10 @@ const std::vector<Entry>& table() {
                       &TemporalParams::prior_neighbourhood_px));
     t.push_back(field("temporal", "prior_edge_zone_px", &PP::temporal,
                       &TemporalParams::prior_edge_zone_px));
-    t.push_back(
-        field("temporal", "highlight_gray", &PP::temporal, &TemporalParams::highlight_gray));
-    t.push_back(field("temporal", "highlight_margin_px", &PP::temporal,
-                      &TemporalParams::highlight_margin_px));
     t.push_back(field("temporal", "max_prior_age_frames", &PP::temporal,
                       &TemporalParams::max_prior_age_frames));
     t.push_back(field("temporal", "max_prior_failures", &PP::temporal,
                       &TemporalParams::max_prior_failures));
-    t.push_back(field("temporal", "refresh_period_frames", &PP::temporal,
-                      &TemporalParams::refresh_period_frames));
     t.push_back(field("temporal", "full_range_period_frames", &PP::temporal,
                       &TemporalParams::full_range_period_frames));
     t.push_back(field("temporal", "fallback_larger_windows", &PP::temporal,

@@ -192,7 +192,6 @@ bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::strin
     info.calibration_generation = impl_->rectifier.generation();
     info.min_disparity = params_.matcher.min_disparity;
     info.max_disparity = params_.matcher.max_disparity;
-    info.left_gray = out.left_rect_gray;  // for the highlight rule (not kept by the tracker)
     std::string reason;
     const SearchRange* range = impl_->temporal.beginFrame(info, &reason);
     out.priors_reset = !reason.empty();

@@ -113,16 +113,10 @@ std::string TemporalParams::validate() const {
     return rangeMessage("prior_neighbourhood_px", "[0, 16]", prior_neighbourhood_px);
   if (prior_edge_zone_px < 0 || prior_edge_zone_px > 64)
     return rangeMessage("prior_edge_zone_px", "[0, 64]", prior_edge_zone_px);
-  if (highlight_gray < 0 || highlight_gray > 255)
-    return rangeMessage("highlight_gray", "[0, 255]", highlight_gray);
-  if (highlight_margin_px < 0 || highlight_margin_px > 64)
-    return rangeMessage("highlight_margin_px", "[0, 64]", highlight_margin_px);
   if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
     return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
   if (max_prior_failures < 1 || max_prior_failures > 1000)
     return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
-  if (refresh_period_frames < 0 || refresh_period_frames > 1000)
-    return rangeMessage("refresh_period_frames", "[0, 1000]", refresh_period_frames);
   if (full_range_period_frames < 1 || full_range_period_frames > 1000)
     return rangeMessage("full_range_period_frames", "[1, 1000]", full_range_period_frames);
   if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))
@@ -159,7 +153,6 @@ std::string TemporalResetDetector::check(const TemporalFrameInfo& info) {
     }
   }
   previous_ = info;
-  previous_.left_gray.release();  // only the stream's identity is kept, not the image
   has_previous_ = true;
   return reason.str();
 }
@@ -187,7 +180,7 @@ void TemporalPrior::reset() {
 }
 
 bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_disparity,
-                               SearchRange& range, const cv::Mat& left_gray) {
+                               SearchRange& range) {
   stats_ = TemporalPriorStats();
   if (size != size_ || min_disparity != min_disparity_ || max_disparity != max_disparity_ ||
       last_disparity_.empty()) {
@@ -303,31 +296,15 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     cv::dilate(hi_f_, hi_f_, kernel);
   }
   const float edge_jump = 2.0f * float(params_.prior_radius_px);
-  const bool highlights = params_.highlight_gray > 0 && !left_gray.empty();
-  if (!highlights) zero_row_.assign(size.width, 0);
-  if (highlights) {
-    if (left_gray.type() != CV_8UC1 || left_gray.size() != size) {
-      throw std::invalid_argument(
-          "TemporalPrior::buildRange: left_gray must be CV_8UC1 of the range size");
-    }
-    cv::compare(left_gray, params_.highlight_gray, bright_, cv::CMP_GE);
-    const int m = params_.highlight_margin_px;
-    if (m > 0) {
-      cv::dilate(bright_, bright_,
-                 cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * m + 1, 2 * m + 1)));
-    }
-  }
 
   range.lo.create(size, CV_16SC1);
   range.hi.create(size, CV_16SC1);
   const float r = float(params_.prior_radius_px);
-  const int period = params_.refresh_period_frames;
-  const int refresh_phase = period > 0 ? int(frame_count_ % period) : -1;
   const int full_period = params_.full_range_period_frames;
   const int full_phase = int(frame_count_ % full_period);
   // Deferred pixels get lo > hi even after the matcher clamps to [min, max].
   const int16_t none_lo = int16_t(max_disparity + 1), none_hi = int16_t(min_disparity - 1);
-  enum { kRefresh, kFull, kBright, kEdge, kNarrowed, kWidth, kDeferred, kCounters };
+  enum { kFull, kEdge, kNarrowed, kWidth, kDeferred, kCounters };
   const std::array<int64_t, kCounters> counts = forRowStripes<kCounters>(
       size.height, [&](int y_begin, int y_end, std::array<int64_t, kCounters>& c) {
         // The block grid expanded to full columns once per block row (the rows below read it as an
@@ -339,15 +316,6 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
           int16_t* lo = range.lo.ptr<int16_t>(y);
           int16_t* hi = range.hi.ptr<int16_t>(y);
           uint8_t* narrowed = narrowed_.ptr<uint8_t>(y);
-          const bool refresh = period > 0 && (y / kRefreshStripeRows) % period == refresh_phase;
-          if (refresh) {
-            std::fill_n(lo, size.width, int16_t(min_disparity));
-            std::fill_n(hi, size.width, int16_t(max_disparity));
-            std::fill_n(narrowed, size.width, uint8_t(0));
-            c[kRefresh] += size.width;
-            c[kFull] += size.width;
-            continue;
-          }
           const float* lo_f = lo_f_.ptr<float>(y);
           const float* hi_f = hi_f_.ptr<float>(y);
           // Without an edge zone jump is +inf: the edge test below is false everywhere.
@@ -368,11 +336,9 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             hi_e = row_hi_e.data();
             jump = edge_jump;
           }
-          // In a row whose stripe does not have its turn, full-range pixels are deferred, except
-          // those near a highlight that have a prior (they would be narrowed but for the light).
-          const bool defer_row = (y / kRefreshStripeRows) % full_period != full_phase;
-          const uint8_t* bright = highlights ? bright_.ptr<uint8_t>(y) : zero_row_.data();
-          int row_bright = 0, row_edge = 0, row_narrowed = 0, row_deferred = 0;
+          // In a row whose stripe does not have its turn, full-range pixels are deferred.
+          const bool defer_row = (y / kFullRangeStripeRows) % full_period != full_phase;
+          int row_edge = 0, row_narrowed = 0, row_deferred = 0;
           int64_t row_width = 0;
           int x = 0;
 #if CV_SIMD128
@@ -391,17 +357,12 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             const cv::v_int32x4 v_none_hi = cv::v_setall_s32(none_hi);
             const cv::v_int32x4 v_two = cv::v_setall_s32(2);
             const cv::v_int32x4 v_defer_row = cv::v_setall_s32(defer_row ? -1 : 0);
-            cv::v_int32x4 n_bright = v_zero, n_edge = v_zero, n_narrowed = v_zero, n_width = v_zero,
+            cv::v_int32x4 n_edge = v_zero, n_narrowed = v_zero, n_width = v_zero,
                           n_deferred = v_zero;
             for (; x <= size.width - 4; x += 4) {
               const cv::v_float32x4 lf = cv::v_load(lo_f + x), hf = cv::v_load(hi_f + x);
               const cv::v_float32x4 le = cv::v_load(lo_e + x), he = cv::v_load(hi_e + x);
-              // (Four bytes widened lane by lane: OpenCV's v_load_expand_q reads them through a
-              // misaligned int pointer, which UBSan rightly reports.)
-              const cv::v_uint32x4 b4(bright[x], bright[x + 1], bright[x + 2], bright[x + 3]);
-              const cv::v_int32x4 lit = cv::v_reinterpret_as_s32(b4) != v_zero;
-              const cv::v_int32x4 has = cv::v_reinterpret_as_s32(lf < v_none);
-              const cv::v_int32x4 prior = has & ~lit;
+              const cv::v_int32x4 prior = cv::v_reinterpret_as_s32(lf < v_none);
               const cv::v_int32x4 edge = prior & cv::v_reinterpret_as_s32((he - le) > v_jump);
               const cv::v_float32x4 edge_f = cv::v_reinterpret_as_f32(edge);
               const cv::v_float32x4 lo_d = cv::v_select(edge_f, le, lf);
@@ -410,7 +371,7 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
               cv::v_int32x4 b = cv::v_min(v_max, cv::v_ceil(hi_d + v_r));
               const cv::v_int32x4 full = ~prior | (a > b);
               const cv::v_int32x4 nar = ~full & ((a > v_min) | (b < v_max));
-              const cv::v_int32x4 dfr = full & ~(has & lit) & v_defer_row;
+              const cv::v_int32x4 dfr = full & v_defer_row;
               a = cv::v_select(dfr, v_none_lo, cv::v_select(full, v_min, a));
               b = cv::v_select(dfr, v_none_hi, cv::v_select(full, v_max, b));
               cv::v_store_low(lo + x, cv::v_pack(a, a));
@@ -419,13 +380,11 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
               const cv::v_int16x8 nar16 = cv::v_pack(flag, flag);
               const unsigned nar8 = cv::v_reinterpret_as_u32(cv::v_pack_u(nar16, nar16)).get0();
               std::memcpy(narrowed + x, &nar8, 4);
-              n_bright -= lit;
               n_edge -= edge;
               n_narrowed -= nar;
               n_width += (b - a + v_one) & nar;
               n_deferred -= dfr;
             }
-            row_bright += cv::v_reduce_sum(n_bright);
             row_edge += cv::v_reduce_sum(n_edge);
             row_narrowed += cv::v_reduce_sum(n_narrowed);
             row_width += cv::v_reduce_sum(n_width);
@@ -433,10 +392,8 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
           }
 #endif
           for (; x < size.width; ++x) {
-            const bool lit = bright[x] != 0;
-            // A pixel with a prior of its own neighbourhood, not near a highlight.
-            const bool has = lo_f[x] < 0.5f * kNoPriorLo;
-            const bool prior = has & !lit;
+            // A pixel with a prior of its own neighbourhood.
+            const bool prior = lo_f[x] < 0.5f * kNoPriorLo;
             // Near a depth edge in the priors, the span of both sides (the edge may have moved).
             const bool edge = prior & (hi_e[x] - lo_e[x] > jump);
             const float lo_d = edge ? lo_e[x] : lo_f[x];
@@ -447,19 +404,17 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
             // search it all. Sentinels give a > b here by construction (lo 1e9, hi -1e9).
             const bool full = !prior | (a > b);
             const bool nar = ((a > min_disparity) | (b < max_disparity)) && !full;
-            const bool dfr = full && !(has && lit) && defer_row;
+            const bool dfr = full && defer_row;
             a = dfr ? none_lo : full ? min_disparity : a;
             b = dfr ? none_hi : full ? max_disparity : b;
             lo[x] = int16_t(a);
             hi[x] = int16_t(b);
             narrowed[x] = dfr ? 2 : uint8_t(nar);
-            row_bright += lit;
             row_edge += edge;
             row_narrowed += nar;
             row_width += nar ? b - a + 1 : 0;
             row_deferred += dfr;
           }
-          c[kBright] += row_bright;
           c[kEdge] += row_edge;
           c[kNarrowed] += row_narrowed;
           c[kDeferred] += row_deferred;
@@ -467,10 +422,8 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
           c[kWidth] += row_width;
         }
       });
-  stats_.refresh_pixels = counts[kRefresh];
   stats_.full_range_pixels = counts[kFull];
   stats_.deferred_pixels = counts[kDeferred];
-  stats_.highlight_pixels = counts[kBright];
   stats_.edge_zone_pixels = counts[kEdge];
   stats_.narrowed_pixels = counts[kNarrowed];
   const int64_t width_sum = counts[kWidth];
@@ -543,7 +496,7 @@ void TemporalPrior::update(const cv::Mat& disparity) {
             const bool was_narrowed = narrowed[x] == 1;
             const bool keep = was_narrowed | (narrowed[x] == 2);
             // Invalid after a full-range search: whatever the prior said is not confirmed, so it is dropped (a wrong prior
-            // cannot outlive a refresh). Invalid after a narrowed search only: the prior ages and
+            // cannot outlive a full-range search). Invalid after a narrowed search only: the prior ages and
             // counts a failure. Not searched (deferred): the prior ages.
             const float kept = keep ? d[x] : nan;
             const uint16_t aged = keep ? saturatingIncrement(age[x]) : kAgeNone;
@@ -855,7 +808,7 @@ const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
     return nullptr;
   }
   priors_used_ =
-      prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_, info.left_gray);
+      prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_);
   return priors_used_ ? &range_ : nullptr;
 }
 

@@ -30,7 +30,6 @@ PostFilterParams withoutPostFilter(PostFilterParams p) {
 // RobustMatcher::compute() runs it on its own, and the post-filter once on the frame's map.
 MatcherParams withoutEdgeTest(MatcherParams p) {
   p.edge_disparity_jump_px = 0.0;
-  p.edge_window_max_px = 0;
   return p;
 }
 
@@ -43,7 +42,7 @@ MatcherParams passParams(const MatcherParams& p, bool larger_windows) {
 }
 
 bool edgeTestOn(const MatcherParams& p) {
-  return p.edge_disparity_jump_px > 0.0 || p.edge_window_max_px > 0;
+  return p.edge_disparity_jump_px > 0.0;
 }
 
 }  // namespace

@@ -367,10 +367,8 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
     j.key("narrowed_pixels").value(f.prior.narrowed_pixels);
     j.key("full_range_pixels").value(f.prior.full_range_pixels);
     j.key("fallback_pixels").value(f.prior.fallback_pixels);
-    j.key("refresh_pixels").value(f.prior.refresh_pixels);
     j.key("deferred_pixels").value(f.prior.deferred_pixels);
     j.key("edge_zone_pixels").value(f.prior.edge_zone_pixels);
-    j.key("highlight_pixels").value(f.prior.highlight_pixels);
     j.key("hits").value(f.prior.prior_hits);
     j.key("misses").value(f.prior.prior_misses);
     j.key("mean_narrowed_width_px").value(f.prior.mean_narrowed_width_px);

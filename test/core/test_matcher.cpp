@@ -508,7 +508,6 @@ TEST_F(MatcherTest, ValidateNamesTheBadField) {
       {"min_ncc", [](MatcherParams& p) { p.min_ncc = 1.5; }},
       {"min_ncc_narrowed", [](MatcherParams& p) { p.min_ncc_narrowed = -2; }},
       {"num_threads", [](MatcherParams& p) { p.num_threads = -2; }},
-      {"edge_window_max_px", [](MatcherParams& p) { p.edge_window_max_px = -1; }},
       {"window_max_narrowed_px", [](MatcherParams& p) { p.window_max_narrowed_px = 33; }},
       {"edge_disparity_jump_px", [](MatcherParams& p) { p.edge_disparity_jump_px = -1; }},
       {"edge_disparity_jump_above_px",
@@ -699,10 +698,9 @@ struct EdgeMap {
     window_idx = cv::Mat(disparity.size(), CV_8U, cv::Scalar(0));
   }
   // Runs the filter; returns the number of pixels it rejected.
-  int filter(double support_share, bool slope_tolerant = true, int window_max_px = 0) {
+  int filter(double support_share, bool slope_tolerant = true) {
     MatcherParams p;
     p.edge_slope_tolerant = slope_tolerant;
-    p.edge_window_max_px = window_max_px;
     p.window_min_px = 7;
     p.edge_verify_radius_px = 0;
     p.edge_disparity_jump_px = 2.0;
@@ -791,16 +789,16 @@ TEST_F(MatcherTest, EdgeSlopeStillFindsAStepOnASteepPlane) {
   EXPECT_EQ(rejectedIn(slope, 38, 49, 10, 29), 0);
 }
 
-TEST_F(MatcherTest, EdgeWindowCapJudgesEveryPixelOfAMapWithoutStats) {
+TEST_F(MatcherTest, EdgeTestJudgesEveryPixelOfAMapWithoutStats) {
   // The instrument edge again, every pixel accepted with the first window, on a result whose
-  // stats are empty (as a map merged from two passes is): with edge_window_max_px the first
-  // window's test runs for the pixels of every window size, and must still judge all of them.
+  // stats are empty (as a map merged from two passes is): the filter counts the pixels per
+  // window size itself, and must judge all of them.
   cv::Mat d(40, 60, CV_32F, cv::Scalar(10));
   d(cv::Rect(30, 0, 30, 40)).setTo(20);
-  EdgeMap capped(d);
-  ASSERT_EQ(capped.r.stats.total_pixels, 0);
-  // The same 16 columns as without the cap: the pixels within 8 px of the edge.
-  EXPECT_EQ(capped.filter(0.4, true, 7), 16 * 40);
+  EdgeMap merged(d);
+  ASSERT_EQ(merged.r.stats.total_pixels, 0);
+  // The pixels within 8 px of the edge (window 7: half 3, plus the 5 px margin): 16 columns.
+  EXPECT_EQ(merged.filter(0.4, true), 16 * 40);
 }
 
 TEST_F(MatcherTest, EdgeSupportValidateNamesTheBadField) {

@@ -519,7 +519,7 @@ TEST_F(PipelineTest, TemporalMatcherWithoutASecondPassEqualsOneMatcherCall) {
     int64_t wide = 0;
     for (int f = 0; f < 3; ++f) {
       TemporalFrameInfo info{s.left.size(), 0.04 * f, 0, p.matcher.min_disparity,
-                             p.matcher.max_disparity, s.left};
+                             p.matcher.max_disparity};
       const SearchRange* range = tracker.beginFrame(info);
       EXPECT_EQ(range != nullptr, f > 0);
       direct.compute(s.left, s.right, a, range);

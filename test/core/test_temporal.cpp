@@ -19,14 +19,12 @@ const float kNaN = std::numeric_limits<float>::quiet_NaN();
 
 cv::Mat constantDisparity(cv::Size size, float d) { return cv::Mat(size, CV_32FC1, cv::Scalar(d)); }
 
-// Priors alone: no refresh stripes, edge zones, scene-change test or highlight rule, so every
-// expected range is easy to state.
+// Priors alone: no edge zones, scene-change test or deferral, so every expected range is easy to
+// state.
 TemporalParams plainParams() {
   TemporalParams p;
-  p.refresh_period_frames = 0;
   p.prior_edge_zone_px = 0;
   p.min_prior_hit_share = 0.0;
-  p.highlight_gray = 0;
   p.full_range_period_frames = 1;
   return p;
 }
@@ -176,51 +174,33 @@ TEST(TemporalPrior, ForgetsPriorsOlderThanMaxAge) {
   EXPECT_EQ(prior.stats().full_range_pixels, 256);
 }
 
-TEST(TemporalPrior, RefreshStripesTakeTurnsAtTheFullRange) {
+TEST(TemporalPrior, ANarrowedSearchThatFailsKeepsItsPrior) {
   TemporalParams p = plainParams();
-  p.refresh_period_frames = 4;
-  p.prior_neighbourhood_px = 2;
+  p.prior_neighbourhood_px = 0;
+  p.max_prior_failures = 2;
   TemporalPrior prior(p);
-  const cv::Size size(16, 4 * kRefreshStripeRows);
+  const cv::Size size(16, 32);
   SearchRange range;
   prior.buildRange(size, 0, 63, range);
   prior.update(constantDisparity(size, 30.0f));
-  std::vector<int> refreshed(4, 0);
-  for (int f = 1; f <= 4; ++f) {
-    ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-    EXPECT_EQ(prior.stats().refresh_pixels, 16 * kRefreshStripeRows);
-    for (int s = 0; s < 4; ++s) {
-      const int y = s * kRefreshStripeRows + 3;
-      const bool full = range.lo.at<int16_t>(y, 5) == 0 && range.hi.at<int16_t>(y, 5) == 63;
-      refreshed[s] += full;
-      if (!full) EXPECT_EQ(range.lo.at<int16_t>(y, 5), 26);
-    }
-    prior.update(constantDisparity(size, 30.0f));
-  }
-  for (int s = 0; s < 4; ++s)
-    EXPECT_EQ(refreshed[s], 1) << "stripe " << s;  // each once in 4 frames
-  // A refreshed pixel whose full search finds nothing loses its prior: the stripe's rows further
-  // than the neighbourhood from the other stripes search the full range next frame.
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  int stripe = -1;
-  for (int s = 0; s < 4; ++s)
-    if (range.lo.at<int16_t>(s * kRefreshStripeRows + 3, 5) == 0) stripe = s;
-  ASSERT_GE(stripe, 0);
+  // A narrowed search that fails keeps its prior (up to max_prior_failures in a row).
   cv::Mat d = constantDisparity(size, 30.0f);
-  d.rowRange(stripe * kRefreshStripeRows, (stripe + 1) * kRefreshStripeRows).setTo(kNaN);
-  prior.update(d);
-  p.refresh_period_frames = 0;
-  prior.setParams(p);
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_EQ(range.lo.at<int16_t>(stripe * kRefreshStripeRows + 3, 5), 0);
-  EXPECT_EQ(range.lo.at<int16_t>(stripe * kRefreshStripeRows + 1, 5), 26);  // neighbours' priors
-  // A narrowed search that fails keeps its prior (up to max_prior_failures).
-  d = constantDisparity(size, 30.0f);
   d.at<float>(3, 5) = kNaN;
   prior.update(d);
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
   EXPECT_EQ(prior.lastDisparity().at<float>(3, 5), 30.0f);
   EXPECT_EQ(prior.priorAge().at<uint16_t>(3, 5), 1);
+  EXPECT_EQ(range.lo.at<int16_t>(3, 5), 26);
+  // The second failure in a row sends it to the full range...
+  prior.update(d);
+  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
+  EXPECT_EQ(range.lo.at<int16_t>(3, 5), 0);
+  EXPECT_EQ(range.hi.at<int16_t>(3, 5), 63);
+  EXPECT_EQ(range.lo.at<int16_t>(3, 6), 26);
+  // ...and a full-range search that finds nothing drops the prior: a wrong prior cannot outlive it.
+  prior.update(d);
+  EXPECT_TRUE(std::isnan(prior.lastDisparity().at<float>(3, 5)));
 }
 
 TEST(TemporalPrior, DeferredFullRangeSearchesTakeTurns) {
@@ -230,7 +210,7 @@ TEST(TemporalPrior, DeferredFullRangeSearchesTakeTurns) {
   p.full_range_period_frames = 4;
   TemporalPrior prior(p);
   // 18 columns: the vector loop takes 16 of them, the scalar tail the last two.
-  const cv::Size size(18, 4 * kRefreshStripeRows);
+  const cv::Size size(18, 4 * kFullRangeStripeRows);
   SearchRange range;
   prior.buildRange(size, 0, 63, range);
   // Columns 0-7 matched at 30, columns 8-17 never: those have no prior.
@@ -241,10 +221,10 @@ TEST(TemporalPrior, DeferredFullRangeSearchesTakeTurns) {
   for (int f = 1; f <= 4; ++f) {
     ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
     EXPECT_EQ(prior.stats().narrowed_pixels, 8 * size.height);
-    EXPECT_EQ(prior.stats().full_range_pixels, 10 * kRefreshStripeRows);
-    EXPECT_EQ(prior.stats().deferred_pixels, 3 * 10 * kRefreshStripeRows);
+    EXPECT_EQ(prior.stats().full_range_pixels, 10 * kFullRangeStripeRows);
+    EXPECT_EQ(prior.stats().deferred_pixels, 3 * 10 * kFullRangeStripeRows);
     for (int s = 0; s < 4; ++s) {
-      const int y = s * kRefreshStripeRows + 5;
+      const int y = s * kFullRangeStripeRows + 5;
       EXPECT_EQ(range.lo.at<int16_t>(y, 3), 26);  // a prior: narrowed whatever the stripe
       EXPECT_EQ(range.hi.at<int16_t>(y, 3), 34);
       bool full[2];
@@ -264,7 +244,7 @@ TEST(TemporalPrior, DeferredFullRangeSearchesTakeTurns) {
   // A deferred pixel was not searched: its prior ages but is kept, and no failure is counted.
   // Pixel (y, 3) fails its narrowed search once (max_prior_failures = 1), so it falls back to the
   // full range; in a stripe whose turn it is not, it is deferred.
-  const int y = 1 * kRefreshStripeRows + 5;
+  const int y = 1 * kFullRangeStripeRows + 5;
   cv::Mat miss = d.clone();
   miss.at<float>(y, 3) = kNaN;
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
@@ -318,34 +298,6 @@ TEST(TemporalPrior, EdgeZoneSpansBothSidesOfADepthEdge) {
   prior.update(d);
   ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
   EXPECT_EQ(prior.stats().edge_zone_pixels, 0);
-}
-
-TEST(TemporalPrior, SearchesTheFullRangeNearHighlights) {
-  TemporalParams p = plainParams();
-  p.highlight_gray = 250;
-  p.highlight_margin_px = 3;
-  TemporalPrior prior(p);
-  const cv::Size size(30, 20);
-  SearchRange range;
-  prior.buildRange(size, 0, 63, range);
-  prior.update(constantDisparity(size, 30.0f));
-  cv::Mat gray(size, CV_8UC1, cv::Scalar(120));
-  gray(cv::Rect(10, 10, 2, 2)).setTo(255);  // a saturated highlight
-  gray.at<uint8_t>(2, 25) = 249;            // bright, but below the threshold
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range, gray));
-  EXPECT_EQ(range.lo.at<int16_t>(10, 10), 0);   // on the highlight
-  EXPECT_EQ(range.hi.at<int16_t>(13, 14), 63);  // 3 px away: still within the margin
-  EXPECT_EQ(range.lo.at<int16_t>(10, 15), 26);  // 4 px away: the prior
-  EXPECT_EQ(range.lo.at<int16_t>(2, 25), 26);
-  EXPECT_EQ(prior.stats().highlight_pixels, 8 * 8);
-  // Without an image, or with the rule off, the prior applies everywhere.
-  prior.update(constantDisparity(size, 30.0f));
-  ASSERT_TRUE(prior.buildRange(size, 0, 63, range));
-  EXPECT_EQ(range.lo.at<int16_t>(10, 10), 26);
-  EXPECT_EQ(prior.stats().highlight_pixels, 0);
-  prior.update(constantDisparity(size, 30.0f));
-  EXPECT_THROW(prior.buildRange(size, 0, 63, range, cv::Mat(size, CV_16UC1, cv::Scalar(0))),
-               std::invalid_argument);
 }
 
 TEST(TemporalPrior, ResetsOnSizeOrRangeChange) {
@@ -627,8 +579,7 @@ TEST(TemporalPrior, RangesShrinkAndHoldTheNextFrameOnAMovingSequence) {
   int dmin = 0, dmax = 0;
   scene.suggestedDisparityRange(&dmin, &dmax);
   TemporalParams tp;
-  tp.refresh_period_frames = 0;  // so that every pixel with a prior is narrowed
-  // and every fallback searches the full range at once (deferral: DeferredFullRangeSearches...)
+  // Every fallback searches the full range at once (deferral: DeferredFullRangeSearches...)
   tp.full_range_period_frames = 1;
   TemporalPrior prior(tp);
   SearchRange range;
@@ -728,7 +679,7 @@ TEST(TemporalTracker, RecoversFromASceneCutWithTheRealMatcher) {
     cv::cvtColor(frame.left, l, cv::COLOR_BGR2GRAY);
     cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
     std::string reason;
-    const SearchRange* range = tracker.beginFrame({l.size(), i / 25.0, 0, dmin, dmax, l}, &reason);
+    const SearchRange* range = tracker.beginFrame({l.size(), i / 25.0, 0, dmin, dmax}, &reason);
     with_priors.compute(l, r, res, range);
     const bool rejected = range && tracker.rejectPriors(res.disparity);
     EXPECT_EQ(rejected, i == 4) << "frame " << i;
@@ -760,7 +711,7 @@ TEST(TemporalPrior, NoPixelGoesLongerThanTheFullRangePeriodWithoutASearch) {
   TemporalParams p;  // the shipped preset
   ASSERT_LE(p.full_range_period_frames, 10);
   TemporalPrior prior(p);
-  const cv::Size size(67, 5 * kRefreshStripeRows + 3);
+  const cv::Size size(67, 5 * kFullRangeStripeRows + 3);
   cv::RNG rng(12345);
   SearchRange range;
   std::vector<int> last(size_t(size.area()), -1);  // frame of each pixel's latest search

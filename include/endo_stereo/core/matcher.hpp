@@ -93,9 +93,6 @@ struct MatcherParams {
   int num_threads = 0;
   static constexpr int kMaxNumThreads = 256;
   // Ours, against window fattening at depth edges: see matcher.cpp and BENCHMARKS.md.
-  /// Largest window allowed to accept a pixel that lies next to a disparity discontinuity (its
-  /// w_min window straddles one by the test below; 0 = no limit). Units px.
-  int edge_window_max_px = 0;
   /// Reject a pixel whose accepting window (widened by edge_margin_px) holds accepted disparities
   /// more than this below its own: its window straddles a depth edge and it may carry the nearer
   /// surface's disparity (foreground fattening). px, >= 0; 0 switches the whole test off.

@@ -17,13 +17,11 @@
  * - a pixel whose narrowed search keeps failing falls back to the full range; when the share of
  *   narrowed searches that succeed drops to a fraction of the previous frame's (a cut), all
  *   priors are dropped and the frame can be matched again;
- * - optionally, near specular highlights the full range is searched (highlight_gray; off by
- *   default since the matcher tries only its first window in a narrowed range);
  * - all temporal state is forgotten when time goes back (a looping bag), after a long gap, or when
  *   the image size, the disparity range or the calibration changes.
  * Priors must not weaken the acceptance criteria: the matcher applies the same criteria, only the
- * range changes, and where a narrowed range measurably let more errors through (highlights, cuts,
- * moving edges) the rules above widen it. docs/temporal_results.md has the measurements.
+ * range changes, and where a narrowed range measurably let more errors through (cuts, moving
+ * edges) the rules above widen it. docs/temporal_results.md has the measurements.
  *
  * Use (what Pipeline does per frame):
  * @code
@@ -74,34 +72,17 @@ struct TemporalParams {
   /// blocks, so it reaches between this and this + 7 px. In [0, 64]; 0 = off (also when <=
   /// prior_neighbourhood_px).
   int prior_edge_zone_px = 16;
-  /// Specular highlights move with the view, and a narrowed search there loses the competitors
-  /// that let the criteria reject a highlight matched to itself: pixels within highlight_margin_px
-  /// of a left pixel at least this bright (gray, 0..255) search the full range. Needs
-  /// TemporalFrameInfo::left_gray. In [0, 255]; 0 = off (the default). It was 250 while a
-  /// narrowed range tried every window size; with matcher.window_max_narrowed_px 7 the rule
-  /// bought no accuracy on the surgical sequence (bad2 0.030% with it, 0.029% without) and its
-  /// full-range searches cost a fifth of a frame's instructions (docs/temporal_results.md).
-  int highlight_gray = 0;
-  /// See highlight_gray, px. In [0, 64].
-  int highlight_margin_px = 4;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
   /// In [1, 1000].
   int max_prior_age_frames = 3;
   /// After this many consecutive frames in which a pixel searched a narrowed range and got no
   /// valid disparity, it searches the full range until it gets one again. In [1, 1000].
   int max_prior_failures = 2;
-  /// Every pixel searches the full range at least once in this many frames: each frame, one in
-  /// every refresh_period_frames stripes of kRefreshStripeRows rows does (in turn), so a wrong
-  /// prior cannot sustain itself. A full-range search that finds nothing drops the pixel's prior.
-  /// In [0, 1000]; 0 = never refresh (the default: with the matcher's guards it bought no accuracy
-  /// on the surgical sequence and costs 1/period of a full search, docs/temporal_results.md).
-  int refresh_period_frames = 0;
   /// A pixel without a usable prior (none valid within max_prior_age_frames in its neighbourhood,
   /// or dropped after max_prior_failures) searches the full range in one frame of this many: each
-  /// frame, one in every full_range_period_frames stripes of kRefreshStripeRows rows takes its
+  /// frame, one in every full_range_period_frames stripes of kFullRangeStripeRows rows takes its
   /// turn; elsewhere such pixels are not searched (matcher code "unsearched"), keep whatever prior
-  /// they had (it ages) and count no failure. With the highlight rule on, pixels near a highlight
-  /// that have a prior are never deferred (they search the full range every frame). 1 = every frame
+  /// they had (it ages) and count no failure. 1 = every frame
   /// (docs/method.md section 4 to the letter). Most pixels without a prior fail again (the
   /// textureless instrument, the band at the left border, wet highlights), and a failure at the
   /// full range runs every window size: on the surgical sequence 4 cuts 22% of the matcher's
@@ -142,8 +123,8 @@ struct TemporalParams {
 };
 
 /// Height of the row stripes that take turns at a full-range search (TemporalParams::
-/// refresh_period_frames).
-constexpr int kRefreshStripeRows = 8;
+/// full_range_period_frames).
+constexpr int kFullRangeStripeRows = 8;
 
 /// What identifies a continuous stream for the temporal state.
 struct TemporalFrameInfo {
@@ -152,9 +133,6 @@ struct TemporalFrameInfo {
   uint64_t calibration_generation = 0;  ///< bump whenever the calibration changes
   int min_disparity = 0;                ///< matcher's full range, px, inclusive
   int max_disparity = 63;
-  /// The rectified left image (CV_8UC1) for the highlight rule (TemporalParams::highlight_gray);
-  /// empty = the rule is off for this frame. Not kept after beginFrame().
-  cv::Mat left_gray;
 };
 
 /**
@@ -182,14 +160,11 @@ class TemporalResetDetector {
 struct TemporalPriorStats {
   int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
   int64_t full_range_pixels = 0;  ///< pixels searching the full range this frame (no usable
-                                  ///< prior, a refresh stripe, or near a highlight)
+                                  ///< prior, or its stripe's turn)
   int64_t fallback_pixels = 0;    ///< had a prior but it kept failing (full range or deferred)
-  int64_t refresh_pixels = 0;     ///< of the full-range pixels: in this frame's refresh stripes
   int64_t deferred_pixels = 0;    ///< not searched this frame: full range, not their stripe's turn
                                   ///< (full_range_period_frames); not in full_range_pixels
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
-  int64_t highlight_pixels = 0;   ///< pixels near a highlight (left_gray given): full range or
-                                  ///< deferred
   bool scene_change = false;      ///< all priors dropped this frame: too few narrowed searches hit
   int64_t prior_hits = 0;         ///< narrowed pixels that got a valid disparity (after update())
   int64_t prior_misses = 0;       ///< narrowed pixels that got none (after update())
@@ -205,8 +180,8 @@ struct TemporalPriorStats {
  * prior_neighbourhood_px of p (priors no older than max_prior_age_frames, of pixels that have not
  * failed max_prior_failures times in a row), clamped to the full range. Near a prior depth edge
  * (within prior_edge_zone_px) the span of both sides is searched instead. Pixels with no such
- * prior search the full range, and so do pixels near a highlight (when buildRange() gets the left
- * image) and the rows of this frame's refresh stripes.
+ * prior search the full range in one frame of full_range_period_frames (their row stripe's turn)
+ * and are deferred in the others.
  */
 class TemporalPrior {
  public:
@@ -222,12 +197,10 @@ class TemporalPrior {
   /**
    * Build the search range of the next frame.
    * A change of size or full range against the stored state resets it first.
-   * @param left_gray optional rectified left image (CV_8UC1, @p size) for the highlight rule.
    * @return true when at least one pixel got a narrowed range (pass &range to the matcher);
    *         false when every pixel searches the full range (range cleared; pass nullptr).
    */
-  bool buildRange(cv::Size size, int min_disparity, int max_disparity, SearchRange& range,
-                  const cv::Mat& left_gray = cv::Mat());
+  bool buildRange(cv::Size size, int min_disparity, int max_disparity, SearchRange& range);
 
   /**
    * Record the frame's final disparity (CV_32FC1, NaN invalid, the size given to buildRange()).
@@ -268,12 +241,11 @@ class TemporalPrior {
   cv::Mat age_;             // CV_16UC1
   cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
   cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed, 2 deferred
-  int64_t frame_count_ = 0; // update() calls since the last reset (selects refresh stripes)
+  int64_t frame_count_ = 0; // update() calls since the last reset (selects the stripes' turn)
   double reference_hit_share_ = -1.0;  // see referenceHitShare()
   cv::Mat lo_f_, hi_f_;     // scratch: priors spread over the neighbourhood
   cv::Mat lo_e_, hi_e_;     // scratch: priors spread over the edge zone
-  cv::Mat bright_;          // scratch: near-highlight pixels
-  std::vector<uint8_t> zero_row_;           // scratch: "no highlight" row when none are given
+  std::vector<uint8_t> zero_row_;           // scratch: "not narrowed" row (update() without a range)
   TemporalPriorStats stats_;
 };
 
