@@ -3,7 +3,7 @@ SHELL := /bin/bash
 WS ?= $(CURDIR)/.ws
 export WS
 
-.PHONY: all deps build test test-runner-selftest bench demo clean help asan tsan fuzz soak
+.PHONY: all deps build test test-runner-selftest bench demo clean help asan tsan fuzz soak params-table
 
 all: build
 
@@ -13,6 +13,7 @@ help:
 	@echo "make test-runner-selftest - the test runner on planted defects (last line: runner self-test: N planted, N caught)"
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
+	@echo "make params-table - write the parameter table (src/core/param_table.cpp) into README.md"
 	@echo "make asan   - ASan+UBSan build in .ws_asan, whole test suite;  make tsan - TSan nodelet run in .ws_tsan"
 	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 100000-pair soak (about an hour)"
 
@@ -33,6 +34,9 @@ bench: build
 
 demo: build
 	@scripts/demo.sh
+
+params-table: build
+	@scripts/params_table.sh
 
 # Reliability (RELIABILITY.md): sanitizer workspaces of their own, fuzzing outside catkin.
 asan: deps

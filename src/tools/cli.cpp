@@ -57,7 +57,9 @@ Parameters (applied in this order; keys are listed by --list-params):
   --min-disparity N           smallest disparity searched, px (matcher.min_disparity)
   --max-disparity N           largest disparity searched, px, inclusive (matcher.max_disparity)
   --threads N                 worker threads (0 = OpenCV's default); results do not depend on it
-  --list-params               print every parameter key with its value and type, then exit
+  --list-params               print every parameter: key = value (type; range; paper, ours or
+                              setting) and what it does, then exit; with --markdown the table of
+                              defaults that README.md shows
 
 Rectification (default: the input is already rectified):
   --calib SPEC                calibrated: 'left.yaml,right.yaml' (ROS camera_info YAML pair) or one
@@ -111,6 +113,7 @@ struct Options {
   bool no_priors = false;
   bool quiet = false;
   bool list_params = false;
+  bool markdown = false;
 };
 
 using endo_stereo::tools::UsageError;
@@ -186,10 +189,13 @@ Options parseArgs(int argc, char** argv) {
       o.quiet = true;
     } else if (args.is("--list-params")) {
       o.list_params = true;
+    } else if (args.is("--markdown")) {
+      o.markdown = true;
     } else {
       args.unknown();
     }
   }
+  if (o.markdown && !o.list_params) throw UsageError("--markdown goes with --list-params");
   if (o.list_params) return o;
   if (o.left.empty() || o.right.empty()) throw UsageError("--left and --right are required");
   if (!o.calib.empty() && o.uncalibrated) {
@@ -435,14 +441,13 @@ endo_stereo::PipelineParams makeParams(const Options& o) {
   return params;
 }
 
+// One line per parameter: key = value (type; range; origin) and what it does.
 void printParams(const endo_stereo::PipelineParams& params) {
   for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(params)) {
     std::cout << info.key << " = " << info.value << "  (" << endo_stereo::paramTypeName(info.type);
-    if (!info.choices.empty()) {
-      std::cout << ":";
-      for (const auto& c : info.choices) std::cout << " " << c;
-    }
-    std::cout << ")\n";
+    if (!info.range.empty()) std::cout << "; " << info.range;
+    std::cout << "; " << endo_stereo::paramOriginName(info.origin) << ")  " << info.meaning
+              << "\n";
   }
 }
 
@@ -625,7 +630,11 @@ void writeRunOutputs(const Options& o, const endo_stereo::PipelineParams& params
 int process(const Options& o) {
   const endo_stereo::PipelineParams params = makeParams(o);
   if (o.list_params) {
-    printParams(params);
+    if (o.markdown) {
+      std::cout << endo_stereo::paramTableMarkdown();
+    } else {
+      printParams(params);
+    }
     return kExitOk;
   }
   const std::string err = params.validate();

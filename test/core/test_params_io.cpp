@@ -3,6 +3,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <cmath>
 #include <cstdio>
 #include <fstream>
 #include <regex>
@@ -251,11 +252,109 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
          it != std::sregex_iterator(); ++it) {
       const std::string key = std::string(src.section) + "." + (*it)[1].str();
       EXPECT_EQ(keys.count(key), 1u)
-          << key << " (" << src.strukt << ") has no key in params_io.cpp";
+          << key << " (" << src.strukt << ") has no entry in src/core/param_table.cpp";
       ++found;
     }
     EXPECT_GT(found, 0) << src.strukt;
   }
+}
+
+
+// --- the parameter table: ranges, meanings, presets and the README agree with it ----------------
+
+// validate()'s verdict on the defaults with one key set to @p value: "" = accepted, else the
+// message. A message about another key (a cross-field rule) is not this key's verdict.
+std::string verdict(const ParamInfo& info, double value) {
+  PipelineParams p;
+  char text[64];
+  std::snprintf(text, sizeof(text), "%.17g", value);
+  EXPECT_EQ(setPipelineParam(p, info.key, text), "") << info.key << " = " << text;
+  return p.validate();
+}
+
+bool names(const std::string& message, const ParamInfo& info) {
+  return message.find(info.field) != std::string::npos;
+}
+
+// The table's range of each number is what validate() enforces: values just outside a bound are
+// refused with a message naming the key, values at a closed bound (or next to an open one) are
+// accepted. Where the range is not a plain interval (odd widths, a bound set by another field),
+// only the outer limits are checked, as refusals.
+TEST(ParamTable, RangesAreWhatValidateEnforces) {
+  int checked = 0;
+  for (const ParamInfo& info : listPipelineParams(PipelineParams())) {
+    if (info.type != ParamType::kInt && info.type != ParamType::kDouble) continue;
+    const ParamBounds& b = info.bounds;
+    const bool is_int = info.type == ParamType::kInt;
+    // Just outside: the next integer, or the next representable double (exact for these bounds).
+    auto below = [&](double v) { return is_int ? v - 1.0 : std::nextafter(v, -HUGE_VAL); };
+    auto beyond = [&](double v) { return is_int ? v + 1.0 : std::nextafter(v, HUGE_VAL); };
+    if (std::isfinite(b.lo)) {
+      const double out = b.lo_open ? b.lo : below(b.lo);
+      const std::string m = verdict(info, out);
+      EXPECT_TRUE(names(m, info)) << info.key << " = " << out << " accepted: '" << m << "'";
+      ++checked;
+      if (b.exact) {
+        const double at = b.lo_open ? beyond(b.lo) : b.lo;
+        EXPECT_EQ(verdict(info, at), "") << info.key << " = " << at;
+      }
+    }
+    if (std::isfinite(b.hi)) {
+      const double out = b.hi_open ? b.hi : beyond(b.hi);
+      const std::string m = verdict(info, out);
+      EXPECT_TRUE(names(m, info)) << info.key << " = " << out << " accepted: '" << m << "'";
+      ++checked;
+      if (b.exact) {
+        const double at = b.hi_open ? below(b.hi) : b.hi;
+        EXPECT_EQ(verdict(info, at), "") << info.key << " = " << at;
+      }
+    }
+  }
+  EXPECT_GT(checked, 60);  // about 75 bounds in the table today
+}
+
+TEST(ParamTable, EveryKeyHasAMeaningAnOriginAndARangeUnlessBoolean) {
+  int paper = 0, ours = 0;
+  for (const ParamInfo& info : listPipelineParams(PipelineParams())) {
+    EXPECT_FALSE(info.meaning.empty()) << info.key;
+    EXPECT_EQ(info.range.empty(), info.type == ParamType::kBool) << info.key;
+    EXPECT_EQ(info.default_value, info.value) << info.key;  // listed from the defaults
+    paper += info.origin == ParamOrigin::kPaper;
+    ours += info.origin == ParamOrigin::kOurs;
+  }
+  EXPECT_GE(paper, 10);  // docs/method.md's table of the paper's parameters
+  EXPECT_GE(ours, 10);
+}
+
+// Both presets hold only keys of the table, and every number in them lies within its bounds.
+TEST(ParamTable, PresetValuesLieWithinTheTablesRanges) {
+  for (const char* name : {"default.yaml", "paper.yaml"}) {
+    PipelineParams p;
+    ASSERT_EQ(loadPipelineParams(std::string(ES_SOURCE_DIR) + "/config/" + name, p), "") << name;
+    for (const ParamInfo& info : listPipelineParams(p)) {
+      if (info.type != ParamType::kInt && info.type != ParamType::kDouble) continue;
+      const double v = std::stod(info.value);
+      const ParamBounds& b = info.bounds;
+      EXPECT_TRUE(b.lo_open ? v > b.lo : v >= b.lo) << name << ": " << info.key << " = " << v;
+      EXPECT_TRUE(b.hi_open ? v < b.hi : v <= b.hi) << name << ": " << info.key << " = " << v;
+    }
+  }
+}
+
+// README.md shows the table between its markers as paramTableMarkdown() writes it; regenerate
+// with `make params-table` after changing src/core/param_table.cpp.
+TEST(ParamTable, TheReadmeShowsTheGeneratedTable) {
+  std::ifstream in(std::string(ES_SOURCE_DIR) + "/README.md");
+  ASSERT_TRUE(in.good());
+  std::stringstream text;
+  text << in.rdbuf();
+  const std::string readme = text.str();
+  const std::string begin = "<!-- params-table:begin -->\n", end = "<!-- params-table:end -->";
+  const size_t a = readme.find(begin), b = readme.find(end);
+  ASSERT_NE(a, std::string::npos) << "README.md has no " << begin;
+  ASSERT_NE(b, std::string::npos) << "README.md has no " << end;
+  EXPECT_EQ(readme.substr(a + begin.size(), b - a - begin.size()), paramTableMarkdown())
+      << "README.md's parameter table is stale: run `make params-table`";
 }
 
 }  // namespace

@@ -2,6 +2,7 @@
 // No ROS master needed.
 #include <cmath>
 #include <limits>
+#include <map>
 #include <set>
 
 #include <gtest/gtest.h>
@@ -309,6 +310,30 @@ TEST(Reconfigure, EveryNameIsAPipelineKeyAndDefaultsMatchTheStructs) {
     check(e.name, buf);
   }
   EXPECT_GE(msg.bools.size() + msg.ints.size() + msg.doubles.size(), 25u);
+}
+
+// The .cfg's slider limits lie within the ranges of the table of parameters (a slider may stop
+// short of an unbounded range, never go past a bound that validate() refuses).
+TEST(Reconfigure, SliderLimitsLieWithinTheParameterTable) {
+  dynamic_reconfigure::Config lo_msg, hi_msg;
+  EndoStereoConfig::__getMin__().__toMessage__(lo_msg);
+  EndoStereoConfig::__getMax__().__toMessage__(hi_msg);
+  std::map<std::string, ParamInfo> table;
+  for (const ParamInfo& info : listPipelineParams(PipelineParams())) table[info.key] = info;
+  int checked = 0;
+  auto check = [&](const std::string& name, double lo, double hi) {
+    const std::string key = pipelineKeyForConfigName(name);
+    ASSERT_EQ(table.count(key), 1u) << name;
+    const ParamBounds& b = table[key].bounds;
+    EXPECT_TRUE(b.lo_open ? lo > b.lo : lo >= b.lo) << name << " slider min " << lo;
+    EXPECT_TRUE(b.hi_open ? hi < b.hi : hi <= b.hi) << name << " slider max " << hi;
+    ++checked;
+  };
+  for (size_t i = 0; i < lo_msg.ints.size(); ++i)
+    check(lo_msg.ints[i].name, lo_msg.ints[i].value, hi_msg.ints[i].value);
+  for (size_t i = 0; i < lo_msg.doubles.size(); ++i)
+    check(lo_msg.doubles[i].name, lo_msg.doubles[i].value, hi_msg.doubles[i].value);
+  EXPECT_GE(checked, 20);
 }
 
 TEST(Reconfigure, CoversEveryMatcherFilterTemporalAndOutputKey) {

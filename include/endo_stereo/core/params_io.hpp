@@ -25,6 +25,7 @@
  */
 #pragma once
 
+#include <limits>
 #include <string>
 #include <vector>
 
@@ -40,14 +41,35 @@ enum class ParamType {
   kString,  ///< free text, or one of ParamInfo::choices when that list is not empty
 };
 
-/// One pipeline parameter.
+/// Where a parameter comes from: the paper's method, our additions to it (docs/method.md section
+/// 5), or a setting of the input, output or machine that does not change the method.
+enum class ParamOrigin { kPaper, kOurs, kSetting };
+
+/// The values validate() accepts for a number, where they are a plain interval: lo .. hi, each
+/// end included unless open (infinite = unbounded). exact = false where the accepted values are
+/// not a plain interval (odd widths, a bound set by another field, a list): then
+/// ParamInfo::range says what they are and lo / hi are only outer limits.
+struct ParamBounds {
+  double lo = -std::numeric_limits<double>::infinity();
+  double hi = std::numeric_limits<double>::infinity();
+  bool lo_open = false;
+  bool hi_open = false;
+  bool exact = false;
+};
+
+/// One pipeline parameter, as the one table of parameters describes it (src/core/param_table.cpp).
 struct ParamInfo {
   std::string key;      ///< "section.field", e.g. "matcher.delta_min"
   std::string section;  ///< "matcher", "filter", "preprocess", "rectify", "temporal", "output"
   std::string field;    ///< the struct field name, e.g. "delta_min"
   ParamType type = ParamType::kString;
   std::string value;                 ///< current value as text (parses back to the same value)
+  std::string default_value;         ///< the struct default (= config/default.yaml) as text
   std::vector<std::string> choices;  ///< accepted values of an enumeration; empty otherwise
+  ParamOrigin origin = ParamOrigin::kSetting;
+  ParamBounds bounds;
+  std::string range;    ///< accepted values in words: "[0, 2]", "> 0", "odd, >= 3"; "" for bools
+  std::string meaning;  ///< what it does, one sentence
 };
 
 /// The sections, in the order they are listed and written.
@@ -59,6 +81,14 @@ std::vector<ParamInfo> listPipelineParams(const PipelineParams& params);
 
 /// Human-readable name of a type ("bool", "int", "double", "string").
 std::string paramTypeName(ParamType type);
+
+/// "paper", "ours" or "setting".
+std::string paramOriginName(ParamOrigin origin);
+
+/// The parameter table as Markdown (key, default, range, origin, meaning; one row per key), as
+/// README.md shows it between its `params-table` markers (`endo_stereo_cli --list-params
+/// --markdown` prints it; test_params_io checks the README against it).
+std::string paramTableMarkdown();
 
 /**
  * Set one parameter from text.
