@@ -507,6 +507,144 @@ struct VerifyScratch {
   WindowCache cache;          // window values shared between the pixels
 };
 
+/// Where the windows of one flagged pixel (x, y) of width K = 2 r + 1 lie in the WindowCache's
+/// tiles: every window containing the pixel (top-left corners x - 2 r .. x, y - 2 r .. y) is in
+/// tile column tx (a tile row holds its block's corners and the 2 r after them), in tile rows
+/// ty0 (window rows oy < split_y) and ty1.
+struct PixelWindows {
+  PixelWindows(int x, int y, int r) : K(2 * r + 1) {
+    const int wx0 = x - 2 * r, wy0 = y - 2 * r;
+    tx = wx0 / kTileW;
+    ty0 = wy0 / kTile;
+    ty1 = y / kTile;
+    split_y = std::min(K, (ty0 + 1) * kTile - wy0);
+    for (int oy = 0; oy < K; ++oy) {
+      const int wy = wy0 + oy;
+      offset[oy] = (wy - (oy < split_y ? ty0 : ty1) * kTile) * kTileStride + (wx0 - tx * kTileW);
+    }
+  }
+  /// The tiles of tile rows ty0 and ty1 at disparity q into t.
+  ES_INLINE void fetch(WindowCache& cache, int q, const TileSums* t[2]) const {
+    t[0] = &cache.tile(tx, ty0, q);
+    t[1] = ty1 != ty0 ? &cache.tile(tx, ty1, q) : t[0];
+  }
+  /// The tile of window row oy among the two fetched ones.
+  ES_INLINE const TileSums* tileOf(const TileSums* const t[2], int oy) const {
+    return t[oy < split_y ? 0 : 1];
+  }
+  PixelRows rows() const { return PixelRows{offset, split_y, K}; }
+
+  int K;
+  int tx, ty0, ty1, split_y;
+  int offset[kMaxSide];  // offset of window row oy's first window in its tile
+};
+
+/// The pixel's own ZNCC in each of its windows at disparity @p d, the better of the two integers
+/// around it, into own and own_m (see ownRows). Returns whether every window has own >= min_ncc
+/// (and is not flat).
+ES_INLINE bool ownPassesEveryWindow(WindowCache& cache, const PixelWindows& pw, float d,
+                                    float min_ncc, float* own, float* own_m) {
+  const int q_lo = static_cast<int>(std::floor(d)), q_hi = static_cast<int>(std::ceil(d));
+  const TileSums* t[2];
+  const float* lo_base[2];
+  const float* hi_base[2];
+  pw.fetch(cache, q_lo, t);
+  lo_base[0] = t[0]->ncc;
+  lo_base[1] = t[1]->ncc;
+  if (q_hi != q_lo) {
+    pw.fetch(cache, q_hi, t);
+    hi_base[0] = t[0]->ncc;
+    hi_base[1] = t[1]->ncc;
+  }
+  return ownRows(pw.rows(), lo_base, q_hi != q_lo ? hi_base : nullptr, min_ncc, own, own_m);
+}
+
+/// The competitors of flagged pixel @p f (disparity sa.d) into sc.alts, from the neighbourhood
+/// the map test looked at, and where its triggering neighbours lie relative to it (summed
+/// offsets *sum_dx, *sum_dy). The rounded disparities of the triggering neighbours are marked in
+/// a table (a set: the pixels' order cannot matter), in a branch-free pass; then each marked
+/// value is widened by +-1, kept within the search range and at least 2 px from the pixel's own.
+/// Slots: 0 = not triggering, c - min_disparity + 3 for a rounded disparity c (valid centres
+/// min - 1 .. max + 1 are slots 2 .. nd + 3; values beyond are clamped into slots 1 and nd + 4,
+/// which give no competitor).
+ES_INLINE void listCompetitors(const MatcherParams& mp, const cv::Mat& padded,
+                               const cv::Mat& padded_slot, int pad, const Flagged& f,
+                               const ScanArgs& sa, VerifyScratch& sc, int* sum_dx, int* sum_dy) {
+  sc.alts.clear();
+  const int nd = mp.max_disparity - mp.min_disparity + 1;
+  const int mark_words = (nd + 5 + 7) / 8;  // the table in whole 8-byte words
+  if (static_cast<int>(sc.seen.size()) != nd) {
+    sc.mark.assign(8 * mark_words, 0);
+    sc.seen.assign(nd, 0);
+  }
+  const int slot_off = 3 - mp.min_disparity;
+  uint8_t* mark = sc.mark.data();
+  scanBlock(sa, padded.ptr<float>(pad + f.y - f.half) + pad + f.x - f.half,
+            padded_slot.ptr<int32_t>(pad + f.y - f.half) + pad + f.x - f.half, padded.step1(),
+            2 * f.half + 1, 2 * f.half + 1, -f.half, -f.half, mark, sum_dx, sum_dy);
+  // Marked slots 2 .. nd + 3 in increasing order, eight at a time (most words are clear).
+  mark[0] = mark[1] = 0;
+  for (int wi = 0; wi < mark_words; ++wi) {
+    uint64_t word;
+    std::memcpy(&word, mark + 8 * wi, sizeof(word));
+    if (word == 0) continue;
+    std::memset(mark + 8 * wi, 0, sizeof(word));
+    for (int slot = 8 * wi; slot < std::min(8 * wi + 8, nd + 4); ++slot) {
+      if (!(word >> (8 * (slot - 8 * wi)) & 0xff)) continue;
+      const int c = slot - slot_off;
+      for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity); ++q) {
+        if (sc.seen[q - mp.min_disparity] || std::fabs(static_cast<float>(q) - sa.d) < 2.f) {
+          continue;
+        }
+        sc.seen[q - mp.min_disparity] = 1;
+        sc.alts.push_back(q);
+      }
+    }
+  }
+  for (int q : sc.alts) sc.seen[q - mp.min_disparity] = 0;
+}
+
+/// Fetches the tiles of every competitor into sc.alt_tiles (valid for the whole pixel), testing
+/// each in the window (probe_x, probe_y) first, where a competitor usually wins if it wins
+/// anywhere. Returns false as soon as one beats the pixel's own ZNCC there.
+ES_INLINE bool noCompetitorWinsProbe(WindowCache& cache, const PixelWindows& pw, int probe_x,
+                                     int probe_y, const float* own, VerifyScratch& sc) {
+  const float own_probe = own[probe_y * kRowLanes + probe_x];
+  const int ip = pw.offset[probe_y] + probe_x;
+  sc.alt_tiles.resize(2 * sc.alts.size());
+  for (size_t i = 0; i < sc.alts.size(); ++i) {
+    const TileSums** t = &sc.alt_tiles[2 * i];
+    pw.fetch(cache, sc.alts[i], t);
+    const TileSums* tp = pw.tileOf(t, probe_y);
+    if (beatsParts(tp->a[ip], tp->b[ip], tp->c[ip], own_probe)) return false;
+  }
+  return true;
+}
+
+/// Whether no competitor (tiles fetched by noCompetitorWinsProbe) beats the pixel's own ZNCC in
+/// any window: a cheap necessary condition over all windows first (anyCandidate), the exact
+/// comparison only where it holds.
+ES_INLINE bool noCompetitorWinsAnywhere(const PixelWindows& pw, const float* own,
+                                        const float* own_m, const VerifyScratch& sc) {
+  const PixelRows pr = pw.rows();
+  const int K = pw.K;
+  for (size_t i = 0; i < sc.alts.size(); ++i) {
+    const TileSums* const* t = &sc.alt_tiles[2 * i];
+    const float* q_base[2] = {t[0]->ncc, t[1]->ncc};
+    if (!anyCandidate(pr, q_base, own_m)) continue;
+    for (int oy = 0; oy < K; ++oy) {
+      const TileSums* tq = pw.tileOf(t, oy);
+      const int o = pw.offset[oy];
+      for (int ox = 0; ox < K; ++ox) {
+        if (beatsParts(tq->a[o + ox], tq->b[o + ox], tq->c[o + ox], own[oy * kRowLanes + ox])) {
+          return false;
+        }
+      }
+    }
+  }
+  return true;
+}
+
 /// The second chance of one flagged pixel (MatcherParams::edge_verify_radius_px). Competitors:
 /// the disparities measured on the other side of the jump, i.e. those of the neighbours that
 /// triggered the test (rounded, +-1 px, within the search range, at least 2 px from the pixel's
@@ -523,119 +661,23 @@ bool everyWindowPrefersOwnDisparity(const MatcherParams& mp, const cv::Mat& left
     return false;  // some windows containing the pixel leave the image: no full verdict
   }
   const float d = disparity.at<float>(f.y, f.x);
-  const int q_lo = static_cast<int>(std::floor(d)), q_hi = static_cast<int>(std::ceil(d));
-  const float min_ncc = static_cast<float>(mp.edge_verify_min_ncc);
   // The verdict is a conjunction over windows and disparities, so its terms go cheapest and
   // most decisive first: the own ZNCC of every window (needs no competitors; a fattened pixel
   // usually fails it in the windows lying on its true surface), then the competitors.
-  //
-  // Every window containing the pixel: top-left corners (x - 2 r .. x, y - 2 r .. y), in tile
-  // column tx (a tile row holds its block's corners and the 2 r after them), in tile rows ty0
-  // (window rows oy < split_y) and ty1.
-  const int K = 2 * r + 1;
-  const int wx0 = f.x - 2 * r, wy0 = f.y - 2 * r;
-  const int tx = wx0 / kTileW, ty0 = wy0 / kTile, ty1 = f.y / kTile;
-  const int split_y = std::min(K, (ty0 + 1) * kTile - wy0);
-  // Offset of window row oy's first window in its tile.
-  int offset[kMaxSide];
-  for (int oy = 0; oy < K; ++oy) {
-    const int wy = wy0 + oy;
-    offset[oy] = (wy - (oy < split_y ? ty0 : ty1) * kTile) * kTileStride + (wx0 - tx * kTileW);
-  }
-  WindowCache& cache = sc.cache;
-  cache.beginPixel();
-  const TileSums* t[2];  // tile rows ty0 and ty1 at the disparity fetched last
-  auto fetch = [&](int q) {
-    t[0] = &cache.tile(tx, ty0, q);
-    t[1] = ty1 != ty0 ? &cache.tile(tx, ty1, q) : t[0];
-  };
-  auto tileOf = [&](int oy) { return t[oy < split_y ? 0 : 1]; };
-  const PixelRows pr{offset, split_y, K};
+  const PixelWindows pw(f.x, f.y, r);
+  sc.cache.beginPixel();
   alignas(32) float own[kMaxSide * kRowLanes];
   alignas(32) float own_m[kMaxSide * kRowLanes];
-  const float* lo_base[2];
-  const float* hi_base[2];
-  fetch(q_lo);
-  lo_base[0] = t[0]->ncc;
-  lo_base[1] = t[1]->ncc;
-  if (q_hi != q_lo) {
-    fetch(q_hi);
-    hi_base[0] = t[0]->ncc;
-    hi_base[1] = t[1]->ncc;
-  }
-  if (!ownRows(pr, lo_base, q_hi != q_lo ? hi_base : nullptr, min_ncc, own, own_m)) return false;
-
-  // Competitors from the neighbourhood the map test looked at. The rounded disparities of the
-  // triggering neighbours are marked in a table (a set: the pixels' order cannot matter), in a
-  // branch-free pass; then each marked value is widened by +-1. Slots: 0 = not triggering,
-  // c - min_disparity + 3 for a rounded disparity c (valid centres min - 1 .. max + 1 are slots
-  // 2 .. nd + 3; values beyond are clamped into slots 1 and nd + 4, which give no competitor).
-  sc.alts.clear();
-  const int nd = mp.max_disparity - mp.min_disparity + 1;
-  const int mark_words = (nd + 5 + 7) / 8;  // the table in whole 8-byte words
-  if (static_cast<int>(sc.seen.size()) != nd) {
-    sc.mark.assign(8 * mark_words, 0);
-    sc.seen.assign(nd, 0);
-  }
-  const int slot_off = 3 - mp.min_disparity;
-  int sum_dx = 0, sum_dy = 0;  // where the triggering neighbours lie, relative to the pixel
-  uint8_t* mark = sc.mark.data();
-  const ScanArgs sa{d, below, above};
-  scanBlock(sa, padded.ptr<float>(pad + f.y - f.half) + pad + f.x - f.half,
-            padded_slot.ptr<int32_t>(pad + f.y - f.half) + pad + f.x - f.half, padded.step1(),
-            2 * f.half + 1, 2 * f.half + 1, -f.half, -f.half, mark, &sum_dx, &sum_dy);
-  // Marked slots 2 .. nd + 3 in increasing order, eight at a time (most words are clear).
-  mark[0] = mark[1] = 0;
-  for (int wi = 0; wi < mark_words; ++wi) {
-    uint64_t word;
-    std::memcpy(&word, mark + 8 * wi, sizeof(word));
-    if (word == 0) continue;
-    std::memset(mark + 8 * wi, 0, sizeof(word));
-    for (int slot = 8 * wi; slot < std::min(8 * wi + 8, nd + 4); ++slot) {
-      if (!(word >> (8 * (slot - 8 * wi)) & 0xff)) continue;
-      const int c = slot - slot_off;
-      for (int q = std::max(c - 1, mp.min_disparity); q <= std::min(c + 1, mp.max_disparity); ++q) {
-        if (sc.seen[q - mp.min_disparity] || std::fabs(static_cast<float>(q) - d) < 2.f) continue;
-        sc.seen[q - mp.min_disparity] = 1;
-        sc.alts.push_back(q);
-      }
-    }
-  }
-  for (int q : sc.alts) sc.seen[q - mp.min_disparity] = 0;
-
-  // Each competitor first in the window shifted furthest towards the triggering neighbours
-  // (where a competitor usually wins if it wins anywhere), then in every window: a cheap
-  // necessary condition over all of them (anyCandidate), the exact comparison only where it
-  // holds.
+  const float min_ncc = static_cast<float>(mp.edge_verify_min_ncc);
+  if (!ownPassesEveryWindow(sc.cache, pw, d, min_ncc, own, own_m)) return false;
+  int sum_dx = 0, sum_dy = 0;
+  listCompetitors(mp, padded, padded_slot, pad, f, ScanArgs{d, below, above}, sc, &sum_dx, &sum_dy);
+  // Each competitor first in the window shifted furthest towards the triggering neighbours, then
+  // in every window.
   const int probe_y = sum_dy > 0 ? 2 * r : sum_dy < 0 ? 0 : r;
   const int probe_x = sum_dx > 0 ? 2 * r : sum_dx < 0 ? 0 : r;
-  const float own_probe = own[probe_y * kRowLanes + probe_x];
-  // The tiles of each competitor, fetched once (valid for the whole pixel).
-  sc.alt_tiles.resize(2 * sc.alts.size());
-  for (size_t i = 0; i < sc.alts.size(); ++i) {
-    fetch(sc.alts[i]);
-    sc.alt_tiles[2 * i] = t[0];
-    sc.alt_tiles[2 * i + 1] = t[1];
-    const TileSums* tp = tileOf(probe_y);
-    const int ip = offset[probe_y] + probe_x;
-    if (beatsParts(tp->a[ip], tp->b[ip], tp->c[ip], own_probe)) return false;
-  }
-  for (size_t i = 0; i < sc.alts.size(); ++i) {
-    t[0] = sc.alt_tiles[2 * i];
-    t[1] = sc.alt_tiles[2 * i + 1];
-    const float* q_base[2] = {t[0]->ncc, t[1]->ncc};
-    if (!anyCandidate(pr, q_base, own_m)) continue;
-    for (int oy = 0; oy < K; ++oy) {
-      const TileSums* tq = tileOf(oy);
-      const int o = offset[oy];
-      for (int ox = 0; ox < K; ++ox) {
-        if (beatsParts(tq->a[o + ox], tq->b[o + ox], tq->c[o + ox], own[oy * kRowLanes + ox])) {
-          return false;
-        }
-      }
-    }
-  }
-  return true;
+  return noCompetitorWinsProbe(sc.cache, pw, probe_x, probe_y, own, sc) &&
+         noCompetitorWinsAnywhere(pw, own, own_m, sc);
 }
 
 }  // namespace

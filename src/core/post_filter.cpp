@@ -191,135 +191,157 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
   return removed;
 }
 
-int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params) {
-  checkMaps(disparity, code, "fillSmallHoles");
-  const std::string err = params.validate();
-  if (!err.empty()) throw std::invalid_argument("fillSmallHoles: " + err);
+namespace {
+
+/// A hole pixel's fill value, written after every block is done.
+struct Fill {
+  int y, x;
+  float v;
+};
+
+/// Whether any of the eight bytes from @p p on is set.
+inline bool anyByte(const uint8_t* p) {
+  uint64_t w;
+  std::memcpy(&w, p, 8);
+  return w != 0;
+}
+
+/// Per-thread buffers of the hole sweep (see markBlockHoles).
+struct HoleSweep {
+  explicit HoleSweep(int cols) : run_len(cols), close_len(cols), inv(cols + 8, 0) {}
+  std::vector<int32_t> run_len;    // per column: invalid pixels in a row up to the current row
+  std::vector<int32_t> close_len;  // per column: length of the run closing at the current row
+  std::vector<uint8_t> inv;        // 1 = invalid (NaN); padded for 8-byte reads
+};
+
+/// One row y of the sweep, @p n columns, branch-free and vectorisable: the validity of each pixel
+/// (iv) and the per-column run bookkeeping (rl). A run closes at this row when the pixel is valid
+/// after 1..max_hole invalid ones that did not start at row 0: cl gets its length, else 0.
+/// Returns nonzero when any run closes. (Sizes by value, outputs __restrict: otherwise the
+/// compiler must assume the stores may change them, and the loop would not vectorise.)
+inline int32_t sweepRow(const float* __restrict d, int n, int max_hole, int y,
+                        uint8_t* __restrict iv, int32_t* __restrict rl, int32_t* __restrict cl) {
+  int32_t any_close = 0;
+  for (int c = 0; c < n; ++c) {
+    const int32_t invalid = d[c] != d[c];
+    const int32_t len = rl[c];
+    iv[c] = static_cast<uint8_t>(invalid);
+    const int32_t closing = (!invalid & (len > 0) & (len <= max_hole) & (len < y)) ? len : 0;
+    cl[c] = closing;
+    any_close |= closing;
+    rl[c] = invalid ? len + 1 : 0;
+  }
+  return any_close;
+}
+
+/// Marks in @p h the horizontal holes of a row whose invalid pixels are @p iv: runs of at most
+/// max_hole invalid pixels with a valid pixel at both ends, skipping valid stretches eight pixels
+/// at a time.
+inline void markRowHoles(const uint8_t* __restrict iv, int cols, int max_hole,
+                         uint8_t* __restrict h) {
+  int x = 0;
+  while (x < cols) {
+    if (x + 8 <= cols && !anyByte(iv + x)) {
+      x += 8;
+      continue;
+    }
+    if (!iv[x]) {
+      ++x;
+      continue;
+    }
+    int end = x;
+    while (end < cols && iv[end]) ++end;
+    if (x > 0 && end < cols && end - x <= max_hole) {
+      for (int i = x; i < end; ++i) h[i] = 1;
+    }
+    x = end;
+  }
+}
+
+/// Marks in @p hole the hole pixels of rows [y0, y1), horizontal and vertical runs found in one
+/// row-major sweep: horizontal runs within the row, vertical runs through a per-column state
+/// (where the column's current invalid run started), so memory is walked contiguously. The sweep
+/// runs from max_hole + 1 rows above y0 to max_hole + 1 rows below y1 (halo) and marks holes only
+/// in rows [y0, y1): a vertical run that can be a hole (at most max_hole long) is then seen whole,
+/// and a run that began above the sweep is at least max_hole + 1 long when it reaches the block,
+/// so it is never taken for one.
+void markBlockHoles(const cv::Mat& disparity, int max_hole, int y0, int y1, HoleSweep& sw,
+                    cv::Mat& hole) {
   const int rows = disparity.rows, cols = disparity.cols;
-  const int max_hole = params.fill_max_hole_px;
-  // A hole pixel is an invalid pixel inside a horizontal or a vertical run of at most max_hole
-  // invalid pixels bounded by valid pixels at both ends. Runs touching the image border are not
-  // bounded and are left alone, as is anything wider: later frames fill those. Both runs are found
-  // in one row-major sweep: horizontal runs within the row, vertical runs through a per-column
-  // state (where the column's current invalid run started), so memory is walked contiguously.
-  // Row blocks in parallel. A block sweeps from max_hole + 1 rows above its first row to
-  // max_hole + 1 rows below its last (halo) and marks holes only in its own rows: a vertical run
-  // that can be a hole (at most max_hole long) is then seen whole, and a run that began above the
-  // sweep is at least max_hole + 1 long when it reaches the block, so it is never taken for one.
-  cv::Mat hole(rows, cols, CV_8UC1, cv::Scalar(0));
-  struct Fill {
-    int y, x;
-    float v;
-  };
-  constexpr int kBlockRows = 32;
-  const int num_blocks = (rows + kBlockRows - 1) / kBlockRows;
-  std::vector<std::vector<Fill>> block_fills(num_blocks);
-  auto anyByte = [](const uint8_t* p) {
-    uint64_t w;
-    std::memcpy(&w, p, 8);
-    return w != 0;
-  };
-  cv::parallel_for_(cv::Range(0, num_blocks), [&, rows, cols, max_hole](const cv::Range& rg) {
-    // (rows, cols, max_hole by value: through references the compiler must assume the stores
-    // below may change them, and the bookkeeping loop would not vectorise.)
-    std::vector<int32_t> run_len(cols), close_len(cols);
-    std::vector<uint8_t> inv(cols + 8, 0);  // 1 = invalid (NaN); padded for 8-byte reads
-    for (int blk = rg.start; blk < rg.end; ++blk) {
-      const int y0 = blk * kBlockRows, y1 = std::min(rows, y0 + kBlockRows);
-      const int ys = std::max(0, y0 - max_hole - 1), ye = std::min(rows, y1 + max_hole + 1);
-      std::fill(run_len.begin(), run_len.end(), 0);
-      for (int y = ys; y < ye; ++y) {
-        const float* __restrict d = disparity.ptr<float>(y);
-        uint8_t* __restrict iv = inv.data();
-        int32_t* __restrict rl = run_len.data();
-        int32_t* __restrict cl = close_len.data();
-        // Branch-free, vectorisable: validity, and the per-column run bookkeeping. A run closes
-        // at this row when the pixel is valid after 1..max_hole invalid ones that did not start
-        // at row 0.
-        int32_t any_close = 0;
-        const int n = cols, mh = max_hole, yy = y;  // locals: the stores cannot alias them
-        for (int c = 0; c < n; ++c) {
-          const int32_t invalid = d[c] != d[c];
-          const int32_t len = rl[c];
-          iv[c] = static_cast<uint8_t>(invalid);
-          const int32_t closing = (!invalid & (len > 0) & (len <= mh) & (len < yy)) ? len : 0;
-          cl[c] = closing;
-          any_close |= closing;
-          rl[c] = invalid ? len + 1 : 0;
-        }
-        // Horizontal runs within the row (own rows only), skipping valid stretches eight
-        // pixels at a time.
-        if (y >= y0 && y < y1) {
-          uint8_t* h = hole.ptr<uint8_t>(y);
-          int x = 0;
-          while (x < cols) {
-            if (x + 8 <= cols && !anyByte(iv + x)) {
-              x += 8;
-              continue;
-            }
-            if (!iv[x]) {
-              ++x;
-              continue;
-            }
-            int end = x;
-            while (end < cols && iv[end]) ++end;
-            if (x > 0 && end < cols && end - x <= max_hole) {
-              for (int i = x; i < end; ++i) h[i] = 1;
-            }
-            x = end;
-          }
-        }
-        // Vertical runs that closed at this row (rare), marked in the block's own rows.
-        for (int c = 0; c < cols && any_close; ++c) {
-          for (int i = std::max(y - cl[c], y0); i < std::min(y, y1); ++i) {
-            hole.ptr<uint8_t>(i)[c] = 1;
-          }
-        }
-      }
-      // The fill value: the median of the valid disparities among the 8 neighbours. With an
-      // even count the lower of the two middle values is taken, so the fill is always a
-      // disparity that was measured (at a depth edge the hole takes one side's value, never an
-      // invented one in between). Values are read from the input map (holes are invalid there)
-      // and written after every block is done, so the blocks and the order of the pixels do not
-      // matter.
-      std::vector<Fill>& fills = block_fills[blk];
-      fills.clear();
-      for (int y = y0; y < y1; ++y) {
-        const uint8_t* h = hole.ptr<uint8_t>(y);
-        for (int x = 0; x < cols; ++x) {
-          if (x + 8 <= cols && !anyByte(h + x)) {
-            x += 7;
-            continue;
-          }
-          if (!h[x]) continue;
-          // The valid neighbours, padded with +inf to eight values and sorted by a fixed
-          // 19-comparator network (branch-free); the padding sorts last, so index (n - 1) / 2 is
-          // the lower median of the n valid values.
-          const float inf = std::numeric_limits<float>::infinity();
-          float v[8] = {inf, inf, inf, inf, inf, inf, inf, inf};
-          int n = 0;
-          for (int yy = std::max(0, y - 1); yy <= std::min(rows - 1, y + 1); ++yy) {
-            const float* d = disparity.ptr<float>(yy);
-            for (int xx = std::max(0, x - 1); xx <= std::min(cols - 1, x + 1); ++xx) {
-              if (yy == y && xx == x) continue;  // the hole itself is invalid
-              const float e = d[xx];
-              if (e == e) v[n++] = e;
-            }
-          }
-          if (n == 0) continue;  // cannot happen for a bounded run; kept for safety
-          static constexpr int kNet[19][2] = {
-              {0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6}, {3, 7}, {0, 1}, {2, 3},
-              {4, 5}, {6, 7}, {2, 4}, {3, 5}, {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
-          for (const auto& c : kNet) {
-            const float a = v[c[0]], b = v[c[1]];
-            v[c[0]] = std::min(a, b);
-            v[c[1]] = std::max(a, b);
-          }
-          fills.push_back(Fill{y, x, v[(n - 1) / 2]});
-        }
+  const int ys = std::max(0, y0 - max_hole - 1), ye = std::min(rows, y1 + max_hole + 1);
+  std::fill(sw.run_len.begin(), sw.run_len.end(), 0);
+  const int32_t* cl = sw.close_len.data();
+  for (int y = ys; y < ye; ++y) {
+    const int32_t any_close = sweepRow(disparity.ptr<float>(y), cols, max_hole, y, sw.inv.data(),
+                                       sw.run_len.data(), sw.close_len.data());
+    if (y >= y0 && y < y1) markRowHoles(sw.inv.data(), cols, max_hole, hole.ptr<uint8_t>(y));
+    // Vertical runs that closed at this row (rare), marked in the block's own rows.
+    for (int c = 0; c < cols && any_close; ++c) {
+      for (int i = std::max(y - cl[c], y0); i < std::min(y, y1); ++i) {
+        hole.ptr<uint8_t>(i)[c] = 1;
       }
     }
-  });
+  }
+}
+
+/// The fill value of hole (x, y): the median of the valid disparities among its 8 neighbours,
+/// with an even count the lower of the two middle values, so the fill is always a disparity that
+/// was measured (at a depth edge the hole takes one side's value, never an invented one in
+/// between). false when no neighbour is valid.
+inline bool lowerMedianOfNeighbours(const cv::Mat& disparity, int x, int y, float* median) {
+  const int rows = disparity.rows, cols = disparity.cols;
+  // The valid neighbours, padded with +inf to eight values and sorted by a fixed 19-comparator
+  // network (branch-free); the padding sorts last, so index (n - 1) / 2 is the lower median of
+  // the n valid values.
+  const float inf = std::numeric_limits<float>::infinity();
+  float v[8] = {inf, inf, inf, inf, inf, inf, inf, inf};
+  int n = 0;
+  for (int yy = std::max(0, y - 1); yy <= std::min(rows - 1, y + 1); ++yy) {
+    const float* d = disparity.ptr<float>(yy);
+    for (int xx = std::max(0, x - 1); xx <= std::min(cols - 1, x + 1); ++xx) {
+      if (yy == y && xx == x) continue;  // the hole itself is invalid
+      const float e = d[xx];
+      if (e == e) v[n++] = e;
+    }
+  }
+  if (n == 0) return false;
+  static constexpr int kNet[19][2] = {{0, 2}, {1, 3}, {4, 6}, {5, 7}, {0, 4}, {1, 5}, {2, 6},
+                                      {3, 7}, {0, 1}, {2, 3}, {4, 5}, {6, 7}, {2, 4}, {3, 5},
+                                      {1, 4}, {3, 6}, {1, 2}, {3, 4}, {5, 6}};
+  for (const auto& c : kNet) {
+    const float a = v[c[0]], b = v[c[1]];
+    v[c[0]] = std::min(a, b);
+    v[c[1]] = std::max(a, b);
+  }
+  *median = v[(n - 1) / 2];
+  return true;
+}
+
+/// The fills of the holes of rows [y0, y1) marked in @p hole, in row-major order. Values are read
+/// from the input map (holes are invalid there), so the blocks and the order of the pixels do
+/// not matter.
+void blockFills(const cv::Mat& disparity, const cv::Mat& hole, int y0, int y1,
+                std::vector<Fill>& fills) {
+  const int cols = disparity.cols;
+  fills.clear();
+  for (int y = y0; y < y1; ++y) {
+    const uint8_t* h = hole.ptr<uint8_t>(y);
+    for (int x = 0; x < cols; ++x) {
+      if (x + 8 <= cols && !anyByte(h + x)) {
+        x += 7;
+        continue;
+      }
+      if (!h[x]) continue;
+      float v;
+      // No valid neighbour cannot happen for a bounded run; kept for safety.
+      if (lowerMedianOfNeighbours(disparity, x, y, &v)) fills.push_back(Fill{y, x, v});
+    }
+  }
+}
+
+/// Writes the fills into the map (and kCodeFilled into @p code unless empty); returns how many.
+int64_t applyFills(const std::vector<std::vector<Fill>>& block_fills, cv::Mat& disparity,
+                   cv::Mat& code) {
   int64_t filled = 0;
   for (const std::vector<Fill>& fills : block_fills) {
     filled += static_cast<int64_t>(fills.size());
@@ -329,6 +351,34 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
     }
   }
   return filled;
+}
+
+}  // namespace
+
+int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params) {
+  checkMaps(disparity, code, "fillSmallHoles");
+  const std::string err = params.validate();
+  if (!err.empty()) throw std::invalid_argument("fillSmallHoles: " + err);
+  const int rows = disparity.rows, cols = disparity.cols;
+  const int max_hole = params.fill_max_hole_px;
+  // A hole pixel is an invalid pixel inside a horizontal or a vertical run of at most max_hole
+  // invalid pixels bounded by valid pixels at both ends. Runs touching the image border are not
+  // bounded and are left alone, as is anything wider: later frames fill those. Row blocks in
+  // parallel, each marking its holes (markBlockHoles) and computing their fills from the input
+  // map; the fills are written after every block is done.
+  cv::Mat hole(rows, cols, CV_8UC1, cv::Scalar(0));
+  constexpr int kBlockRows = 32;
+  const int num_blocks = (rows + kBlockRows - 1) / kBlockRows;
+  std::vector<std::vector<Fill>> block_fills(num_blocks);
+  cv::parallel_for_(cv::Range(0, num_blocks), [&](const cv::Range& rg) {
+    HoleSweep sweep(cols);
+    for (int blk = rg.start; blk < rg.end; ++blk) {
+      const int y0 = blk * kBlockRows, y1 = std::min(rows, y0 + kBlockRows);
+      markBlockHoles(disparity, max_hole, y0, y1, sweep, hole);
+      blockFills(disparity, hole, y0, y1, block_fills[blk]);
+    }
+  });
+  return applyFills(block_fills, disparity, code);
 }
 
 }  // namespace endo_stereo

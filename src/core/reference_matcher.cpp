@@ -91,143 +91,213 @@ float referenceNcc(const cv::Mat& left, const cv::Mat& right, int x, int y, int 
   return (static_cast<float>(h) - mean_l * sum_r_c) * inv_l * inv_r;
 }
 
-void referenceMatch(const cv::Mat& left, const cv::Mat& right, const MatcherParams& p,
-                    const SearchRange* range, MatchResult& out) {
+namespace {
+
+void checkInputs(const cv::Mat& left, const cv::Mat& right, const MatcherParams& p) {
   const std::string err = p.validate();
   if (!err.empty()) throw std::invalid_argument("referenceMatch: " + err);
   if (left.empty() || right.empty() || left.type() != CV_8UC1 || right.type() != CV_8UC1 ||
       left.size() != right.size()) {
     throw std::invalid_argument("referenceMatch: left and right must be CV_8UC1 of one size");
   }
-  const int W = left.cols, H = left.rows;
-  // The requested range of each pixel, clamped to [min_disparity, max_disparity].
-  cv::Mat lo(H, W, CV_32S, cv::Scalar(p.min_disparity));
-  cv::Mat hi(H, W, CV_32S, cv::Scalar(p.max_disparity));
-  out.stats = MatchStats{};
-  out.stats.total_pixels = static_cast<int64_t>(W) * H;
-  if (range && !range->empty()) {
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        const int l = range->lo.at<int16_t>(y, x), h = range->hi.at<int16_t>(y, x);
-        lo.at<int>(y, x) = std::max(l, p.min_disparity);
-        hi.at<int>(y, x) = std::min(h, p.max_disparity);
-        const int cl = lo.at<int>(y, x), ch = hi.at<int>(y, x);
-        out.stats.prior_pixels +=
-            l <= h && cl <= ch && (cl > p.min_disparity || ch < p.max_disparity);
-      }
+}
+
+/// The requested range of each pixel in @p lo, @p hi (CV_32S, set to the whole search range): @p
+/// range where given, clamped to [min_disparity, max_disparity]. Counts the pixels a non-empty
+/// range narrows into stats.prior_pixels.
+void requestedRanges(const MatcherParams& p, const SearchRange* range, cv::Mat& lo, cv::Mat& hi,
+                     MatchStats& stats) {
+  if (!range || range->empty()) return;
+  for (int y = 0; y < lo.rows; ++y) {
+    for (int x = 0; x < lo.cols; ++x) {
+      const int l = range->lo.at<int16_t>(y, x), h = range->hi.at<int16_t>(y, x);
+      lo.at<int>(y, x) = std::max(l, p.min_disparity);
+      hi.at<int>(y, x) = std::min(h, p.max_disparity);
+      const int cl = lo.at<int>(y, x), ch = hi.at<int>(y, x);
+      stats.prior_pixels += l <= h && cl <= ch && (cl > p.min_disparity || ch < p.max_disparity);
     }
   }
-  const Requested req{&lo, &hi};
-  cv::Mat lap_l, lap_r;  // 3x3 Laplacian of the 0..255 images (|g| <= 1020)
-  cv::Laplacian(left, lap_l, CV_16S, 1);
-  cv::Laplacian(right, lap_r, CV_16S, 1);
+}
+
+/// The outputs before matching: no disparity (NaN), code kCodeNotSearched, confidence 0.
+void initOutputs(int W, int H, MatchResult& out) {
   out.disparity.create(H, W, CV_32F);
   out.disparity.setTo(std::numeric_limits<float>::quiet_NaN());
   out.code.create(H, W, CV_8U);
   out.code.setTo(kCodeNotSearched);
   out.confidence.create(H, W, CV_32F);
   out.confidence.setTo(0.f);
-  cv::Mat accepted(H, W, CV_8U, cv::Scalar(0));
-  const float gamma_min = static_cast<float>(p.gamma_min);
-  const float delta_min = static_cast<float>(p.delta_min);
-  const float eps = static_cast<float>(p.epsilon_px);
-  const float min_ncc_full = static_cast<float>(p.min_ncc);
-  const float min_ncc_narrow = std::max(min_ncc_full, static_cast<float>(p.min_ncc_narrowed));
+}
 
+/// The 3x3 Laplacian of a 0..255 image (CV_16S, |g| <= 1020).
+cv::Mat laplacian(const cv::Mat& img) {
+  cv::Mat lap;
+  cv::Laplacian(img, lap, CV_16S, 1);
+  return lap;
+}
+
+/// Everything the per-pixel steps read: the images, their Laplacians, the requested ranges and
+/// the thresholds of the criteria.
+struct Reference {
+  const cv::Mat& left;
+  const cv::Mat& right;
+  const MatcherParams& p;
+  int W, H;
+  Requested req;
+  cv::Mat lap_l, lap_r;  // 3x3 Laplacian of the 0..255 images (|g| <= 1020)
+  float gamma_min, delta_min, eps, min_ncc_full, min_ncc_narrow;
+};
+
+/// The peaks of a profile S: the best, the highest interior local maximum (the first of equal
+/// values; -1: none), and the second, the highest other peak or a range end where S rises towards
+/// the end (kNegInf: none).
+struct Peaks {
+  int best;
+  float second;
+};
+
+Peaks findPeaks(const std::vector<float>& s) {
+  const int n = static_cast<int>(s.size());
+  auto isPeak = [&](int i) { return s[i] > s[i - 1] && s[i] >= s[i + 1]; };
+  int bi = -1;
+  for (int i = 1; i + 1 < n; ++i) {
+    if (isPeak(i) && (bi < 0 || s[i] > s[bi])) bi = i;
+  }
+  if (bi < 0) return Peaks{-1, kNegInf};
+  float second = kNegInf;
+  for (int i = 1; i + 1 < n; ++i) {
+    if (i != bi && isPeak(i)) second = std::max(second, s[i]);
+  }
+  if (s[0] > s[1]) second = std::max(second, s[0]);
+  if (s[n - 1] > s[n - 2]) second = std::max(second, s[n - 1]);
+  return Peaks{bi, second};
+}
+
+/// Criterion 3's d_RL: the best disparity of the right pixel q along row y at half width r, over
+/// the left pixels q + d that search d (ties: the smallest d).
+int rightToLeftDisparity(const Reference& ref, int q, int y, int r) {
+  const MatcherParams& p = ref.p;
+  float rl_best = kNegInf;
+  int d_rl = 0;
+  for (int d = p.min_disparity; d <= p.max_disparity; ++d) {
+    int a2, b2;
+    if (!effectiveRange(ref.req, ref.W, ref.H, q + d, y, r, &a2, &b2) || d < a2 || d > b2) continue;
+    const float v = referenceNcc(ref.left, ref.right, q + d, y, d, r);
+    if (v > rl_best) {
+      rl_best = v;
+      d_rl = d;
+    }
+  }
+  return d_rl;
+}
+
+/// Ours: the sub-pixel offset of the peak s[bi] from the parabola through it and its two
+/// neighbours (0 unless the parabola opens downwards), in [-0.5, 0.5].
+float subpixelOffset(const std::vector<float>& s, int bi) {
+  const float den = s[bi - 1] - 2.f * s[bi] + s[bi + 1];
+  return den < 0.f ? std::clamp(0.5f * (s[bi - 1] - s[bi + 1]) / den, -0.5f, 0.5f) : 0.f;
+}
+
+/// The criteria, in the paper's order, for pixel (x, y) at half width r over its effective range
+/// [a, b] (@p narrowed: its requested range is narrower than the search range). Returns its code
+/// (@p accepted when it passes them all); an accepted pixel gets *disparity and *confidence.
+uint8_t matchPixel(const Reference& ref, int x, int y, int r, int a, int b, bool narrowed,
+                   uint8_t accepted, float* disparity, float* confidence) {
+  // An interior maximum needs two neighbours: at least 3 disparities.
+  if (b - a < 2) return kCodeNoPeak;
+  // Criterion 1, left patch: structure gamma > gamma_min.
+  if (!(structure(ref.lap_l, x, y, r) > ref.gamma_min)) return kCodeRejectStructure;
+  // The profile S(d), d = a .. b, and its peaks.
+  std::vector<float> s;
+  for (int d = a; d <= b; ++d) s.push_back(referenceNcc(ref.left, ref.right, x, y, d, r));
+  const Peaks pk = findPeaks(s);
+  if (pk.best < 0) return kCodeNoPeak;
+  const int bi = pk.best;
+  const int d_lr = a + bi;
+  // Criterion 1, right patch at the best peak.
+  if (!(structure(ref.lap_r, x - d_lr, y, r) > ref.gamma_min)) return kCodeRejectStructure;
+  // Criterion 2: delta = S(best) - S(second) > delta_min (a single peak against -1, the lowest
+  // NCC), and, ours, S(best) >= min_ncc (min_ncc_narrowed for a narrowed range).
+  const float delta = s[bi] - (pk.second == kNegInf ? -1.f : pk.second);
+  if (!(delta > ref.delta_min) || s[bi] < (narrowed ? ref.min_ncc_narrow : ref.min_ncc_full)) {
+    return kCodeRejectPeakGap;
+  }
+  // Criterion 3: match back from the right pixel q = x - d_lr along the same row; its best
+  // disparity d_RL must agree: |d_LR - d_RL| < epsilon (the paper's |d_LR + d_RL| with d_RL
+  // counted negative).
+  const int d_rl = rightToLeftDisparity(ref, x - d_lr, y, r);
+  if (!(std::fabs(static_cast<float>(d_lr) - static_cast<float>(d_rl)) < ref.eps)) {
+    return kCodeRejectLeftRight;
+  }
+  // Accepted. Ours: sub-pixel disparity; confidence = delta clamped to [0, 1].
+  const float sub = ref.p.subpixel ? subpixelOffset(s, bi) : 0.f;
+  *disparity = static_cast<float>(d_lr) + sub;
+  *confidence = std::clamp(delta, 0.f, 1.f);
+  return accepted;
+}
+
+/// One window size of the growth sequence (index @p level, width w): every pixel not accepted
+/// yet with a non-empty effective range gets the code of matchPixel; accepted ones are marked in
+/// @p accepted.
+void matchWindow(const Reference& ref, int level, int w, cv::Mat& accepted, MatchResult& out) {
+  const MatcherParams& p = ref.p;
+  const int r = w / 2;
+  const uint8_t accepted_code = static_cast<uint8_t>(kCodeAcceptedBase + level);
+  for (int y = 0; y < ref.H; ++y) {
+    for (int x = 0; x < ref.W; ++x) {
+      int a, b;
+      if (accepted.at<uint8_t>(y, x) || !effectiveRange(ref.req, ref.W, ref.H, x, y, r, &a, &b)) {
+        continue;
+      }
+      const bool narrowed = ref.req.lo->at<int>(y, x) > p.min_disparity ||
+                            ref.req.hi->at<int>(y, x) < p.max_disparity;
+      // Ours: a narrowed pixel is tried up to window_max_narrowed_px only (the first window
+      // always); it keeps the code of its last window.
+      if (narrowed && level > 0 && p.window_max_narrowed_px > 0 && w > p.window_max_narrowed_px) {
+        continue;
+      }
+      uint8_t& code = out.code.at<uint8_t>(y, x);
+      code = matchPixel(ref, x, y, r, a, b, narrowed, accepted_code, &out.disparity.at<float>(y, x),
+                        &out.confidence.at<float>(y, x));
+      if (code == accepted_code) accepted.at<uint8_t>(y, x) = 1;
+    }
+  }
+}
+
+}  // namespace
+
+void referenceMatch(const cv::Mat& left, const cv::Mat& right, const MatcherParams& p,
+                    const SearchRange* range, MatchResult& out) {
+  checkInputs(left, right, p);
+  const int W = left.cols, H = left.rows;
+  out.stats = MatchStats{};
+  out.stats.total_pixels = static_cast<int64_t>(W) * H;
+  // The requested range of each pixel, clamped to [min_disparity, max_disparity].
+  cv::Mat lo(H, W, CV_32S, cv::Scalar(p.min_disparity));
+  cv::Mat hi(H, W, CV_32S, cv::Scalar(p.max_disparity));
+  requestedRanges(p, range, lo, hi, out.stats);
+  const float min_ncc_full = static_cast<float>(p.min_ncc);
+  const Reference ref{left,
+                      right,
+                      p,
+                      W,
+                      H,
+                      Requested{&lo, &hi},
+                      laplacian(left),
+                      laplacian(right),
+                      static_cast<float>(p.gamma_min),
+                      static_cast<float>(p.delta_min),
+                      static_cast<float>(p.epsilon_px),
+                      min_ncc_full,
+                      std::max(min_ncc_full, static_cast<float>(p.min_ncc_narrowed))};
+  initOutputs(W, H, out);
+  cv::Mat accepted(H, W, CV_8U, cv::Scalar(0));
   // Window growth: w = w_min, w_min + dw, ... <= w_max; a pixel that fails every criterion at one
   // width is tried again at the next.
   for (int level = 0; p.window_min_px + level * p.window_step_px <= p.window_max_px; ++level) {
     const int w = p.window_min_px + level * p.window_step_px;
-    const int r = w / 2;
     if (w > W || w > H) break;
-    for (int y = 0; y < H; ++y) {
-      for (int x = 0; x < W; ++x) {
-        int a, b;
-        if (accepted.at<uint8_t>(y, x) || !effectiveRange(req, W, H, x, y, r, &a, &b)) continue;
-        const bool narrowed =
-            lo.at<int>(y, x) > p.min_disparity || hi.at<int>(y, x) < p.max_disparity;
-        // Ours: a narrowed pixel is tried up to window_max_narrowed_px only (the first window
-        // always); it keeps the code of its last window.
-        if (narrowed && level > 0 && p.window_max_narrowed_px > 0 && w > p.window_max_narrowed_px) {
-          continue;
-        }
-        uint8_t& code = out.code.at<uint8_t>(y, x);
-        // An interior maximum needs two neighbours: at least 3 disparities.
-        if (b - a < 2) {
-          code = kCodeNoPeak;
-          continue;
-        }
-        // Criterion 1, left patch: structure gamma > gamma_min.
-        if (!(structure(lap_l, x, y, r) > gamma_min)) {
-          code = kCodeRejectStructure;
-          continue;
-        }
-        // The profile S(d), d = a .. b.
-        std::vector<float> s;
-        for (int d = a; d <= b; ++d) s.push_back(referenceNcc(left, right, x, y, d, r));
-        const int n = static_cast<int>(s.size());
-        auto isPeak = [&](int i) { return s[i] > s[i - 1] && s[i] >= s[i + 1]; };
-        // The best peak: the highest interior local maximum, the first of equal values.
-        int bi = -1;
-        for (int i = 1; i + 1 < n; ++i) {
-          if (isPeak(i) && (bi < 0 || s[i] > s[bi])) bi = i;
-        }
-        if (bi < 0) {
-          code = kCodeNoPeak;
-          continue;
-        }
-        // The second: the highest other peak, or a range end where S rises towards the end.
-        float second = kNegInf;
-        for (int i = 1; i + 1 < n; ++i) {
-          if (i != bi && isPeak(i)) second = std::max(second, s[i]);
-        }
-        if (s[0] > s[1]) second = std::max(second, s[0]);
-        if (s[n - 1] > s[n - 2]) second = std::max(second, s[n - 1]);
-        const int d_lr = a + bi;
-        // Criterion 1, right patch at the best peak.
-        if (!(structure(lap_r, x - d_lr, y, r) > gamma_min)) {
-          code = kCodeRejectStructure;
-          continue;
-        }
-        // Criterion 2: delta = S(best) - S(second) > delta_min (a single peak against -1, the
-        // lowest NCC), and, ours, S(best) >= min_ncc (min_ncc_narrowed for a narrowed range).
-        const float delta = s[bi] - (second == kNegInf ? -1.f : second);
-        if (!(delta > delta_min) || s[bi] < (narrowed ? min_ncc_narrow : min_ncc_full)) {
-          code = kCodeRejectPeakGap;
-          continue;
-        }
-        // Criterion 3: match back from the right pixel q = x - d_lr along the same row; its best
-        // disparity d_RL over the left pixels q + d that search d (ties: the smallest d) must
-        // agree: |d_LR - d_RL| < epsilon (the paper's |d_LR + d_RL| with d_RL counted negative).
-        const int q = x - d_lr;
-        float rl_best = kNegInf;
-        int d_rl = 0;
-        for (int d = p.min_disparity; d <= p.max_disparity; ++d) {
-          int a2, b2;
-          if (!effectiveRange(req, W, H, q + d, y, r, &a2, &b2) || d < a2 || d > b2) continue;
-          const float v = referenceNcc(left, right, q + d, y, d, r);
-          if (v > rl_best) {
-            rl_best = v;
-            d_rl = d;
-          }
-        }
-        if (!(std::fabs(static_cast<float>(d_lr) - static_cast<float>(d_rl)) < eps)) {
-          code = kCodeRejectLeftRight;
-          continue;
-        }
-        // Accepted. Ours: sub-pixel disparity from the parabola through the peak and its two
-        // neighbours; confidence = delta clamped to [0, 1].
-        float sub = 0.f;
-        if (p.subpixel) {
-          const float den = s[bi - 1] - 2.f * s[bi] + s[bi + 1];
-          if (den < 0.f) sub = std::clamp(0.5f * (s[bi - 1] - s[bi + 1]) / den, -0.5f, 0.5f);
-        }
-        out.disparity.at<float>(y, x) = static_cast<float>(d_lr) + sub;
-        out.confidence.at<float>(y, x) = std::clamp(delta, 0.f, 1.f);
-        code = static_cast<uint8_t>(kCodeAcceptedBase + level);
-        accepted.at<uint8_t>(y, x) = 1;
-      }
-    }
+    matchWindow(ref, level, w, accepted, out);
   }
 }
 

@@ -1,7 +1,8 @@
 // One row at one window size (see row_decisions.hpp). The paper's criteria, in its order, for
 // each pixel still open at this window:
 //   1. structure (gamma): the left patch's Laplacian deviation must exceed gamma_min (denseActive
-//      and matchRow's sparse loop, before any search), then the right patch's at the best peak;
+//      and the sparse loop of activatePixels, before any search), then the right patch's at the
+//      best peak;
 //   2. discrimination (delta): the best NCC peak must exceed the second by more than delta_min,
 //      and (ours) reach min_ncc (min_ncc_narrowed for a narrowed range);
 //   3. left-right consistency (epsilon): |d_LR + d_RL| < epsilon, with d_RL the best disparity of
@@ -27,7 +28,7 @@ using namespace simd;
 
 namespace {
 
-/// Inputs of the decisions of a dense row (see matchRow).
+/// Inputs of the decisions of a dense row (see decideRow).
 struct DecideArgs {
   int x0, x1;  // columns [x0, x1)
   const float* act;
@@ -41,8 +42,8 @@ struct DecideArgs {
   float *disp, *conf;
 };
 
-/// The decisions of a dense row, eight columns at a time: the expressions of matchRow's
-/// per-pixel loop lane by lane (the same IEEE operations, so the same values), the two
+/// The decisions of a dense row, eight columns at a time: the expressions of decideRow's
+/// per-pixel decision lane by lane (the same IEEE operations, so the same values), the two
 /// right-pixel values gathered, and every output written through a select that keeps the old
 /// value outside the active pixels. Columns from x0 + 8 * floor((x1 - x0) / 8) on are left to
 /// the caller.
@@ -263,241 +264,325 @@ void WorkerScratch::resetSums() {
   SparseScratch::resetSums();
   FullRangeScratch::resetSums();
 }
+namespace {
 
-/// Match the active pixels of row y at one window size; writes only row y of the outputs.
-void matchRow(const WindowLevel& c, int y, WorkerScratch& s) {
-  const int W = c.width;
-  const int r = c.r;
-  if (y < r || y >= c.height - r) return;
-  ++s.stamp;
+/// Row y at one window size: its inputs and the thresholds of the criteria, shared by matchRow's
+/// steps.
+struct RowJob {
+  /// Also points s.rlo_row, s.rhi_row at the row's requested ranges.
+  RowJob(const WindowLevel& level, int row, WorkerScratch& scratch);
 
-  const int range_row = c.uniform_ranges ? 0 : y;
-  const int* rlo = c.im->range_lo.ptr<int>(range_row);
-  const int* rhi = c.im->range_hi.ptr<int>(range_row);
-  s.rlo_row = rlo;
-  s.rhi_row = rhi;
-  const uint8_t* st = c.state->ptr<uint8_t>(y);
-  uint8_t* code = c.out->code.ptr<uint8_t>(y);
-  const float gmin = static_cast<float>(c.mp->gamma_min);
-
-  // Pixel x is open at this level when it lies inside the window's border, has a requested
-  // range and was not accepted with a smaller window. Dense when most of the row is open (the
-  // first window): every column's range and statistics are then needed and computed row-wide,
-  // and openness is tested row-wide too (below). Sparse rows compute them where needed and keep
-  // the open pixels as a list: built from the row at the row's first sparse level, then filtered
-  // from level to level (a row never turns dense again: its open pixels only get fewer). The
-  // first window counts the requested pixels and builds no list.
-  std::vector<int>& open = (*c.open_rows)[y];
-  int& open_level = (*c.open_level)[y];
-  int n_open = 0;
+  const WindowLevel& c;
+  WorkerScratch& s;
+  int y, W, r;
+  const int* rlo;  // requested range of each column
+  const int* rhi;
+  const uint8_t* st;  // 1 = accepted with a smaller window
+  uint8_t* code;
+  int dmin, dmax;
   // Above window_max_narrowed_px only pixels with the full range stay open (the first window
   // is always tried; without per-pixel ranges no pixel is narrowed).
-  const int cap_w = c.mp->window_max_narrowed_px;
-  const bool capped = !c.uniform_ranges && c.level > 0 && cap_w > 0 && c.w > cap_w;
-  const int dmin = c.dmin, dmax = c.dmax;
-  // A per-pixel range narrower than [dmin, dmax] (the test behind min_ncc_narrowed too).
-  auto narrowed = [&](int x) { return (rlo[x] > dmin) | (rhi[x] < dmax); };
-  auto mayOpen = [&](int x) { return !capped | !narrowed(x); };
+  bool capped;
+  float gmin, delta_min, min_ncc_full, min_ncc_narrow;
+
+  /// A per-pixel range narrower than [dmin, dmax] (the test behind min_ncc_narrowed too).
+  ES_INLINE bool narrowed(int x) const { return (rlo[x] > dmin) | (rhi[x] < dmax); }
+  /// A pixel whose per-pixel range narrows the search has lost the competitors outside it, so
+  /// its best peak must be stronger (min_ncc_narrowed): a prior must not weaken the criteria.
+  ES_INLINE float minNcc(int x) const { return narrowed(x) ? min_ncc_narrow : min_ncc_full; }
+  /// The discrimination test's margin: best peak minus the second (a single peak is measured
+  /// against the lowest NCC, -1).
+  ES_INLINE float peakGap(int x) const {
+    const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
+    return s.best[x] - comp;
+  }
+};
+
+RowJob::RowJob(const WindowLevel& level, int row, WorkerScratch& scratch)
+    : c(level),
+      s(scratch),
+      y(row),
+      W(level.width),
+      r(level.r),
+      rlo(level.im->range_lo.ptr<int>(level.uniform_ranges ? 0 : row)),
+      rhi(level.im->range_hi.ptr<int>(level.uniform_ranges ? 0 : row)),
+      st(level.state->ptr<uint8_t>(row)),
+      code(level.out->code.ptr<uint8_t>(row)),
+      dmin(level.dmin),
+      dmax(level.dmax),
+      capped(!level.uniform_ranges && level.level > 0 && level.mp->window_max_narrowed_px > 0 &&
+             level.w > level.mp->window_max_narrowed_px),
+      gmin(static_cast<float>(level.mp->gamma_min)),
+      delta_min(static_cast<float>(level.mp->delta_min)),
+      min_ncc_full(static_cast<float>(level.mp->min_ncc)),
+      min_ncc_narrow(std::max(min_ncc_full, static_cast<float>(level.mp->min_ncc_narrowed))) {
+  s.rlo_row = rlo;
+  s.rhi_row = rhi;
+}
+
+/// How many pixels of the row are open at this level. Pixel x is open when it lies inside the
+/// window's border, has a requested range and was not accepted with a smaller window. The first
+/// window counts the requested pixels (n_req_rows) and builds no list. Sparse rows keep the open
+/// pixels as a list: built from the row at the row's first sparse level, then filtered from level
+/// to level (a row never turns dense again: its open pixels only get fewer).
+int countOpenPixels(const RowJob& j) {
+  const WindowLevel& c = j.c;
+  const int W = j.W, r = j.r;
+  const int* rlo = j.rlo;
+  const int* rhi = j.rhi;
+  const uint8_t* st = j.st;
+  std::vector<int>& open = (*c.open_rows)[j.y];
   if (c.level == 0) {
+    int n_open = 0;
     for (int x = r; x < W - r; ++x) n_open += rlo[x] <= rhi[x];
-    (*c.n_req_rows)[y] = n_open;
-  } else if (open_level == c.level - 1) {
+    (*c.n_req_rows)[j.y] = n_open;
+    return n_open;
+  }
+  if ((*c.open_level)[j.y] == c.level - 1) {
     // Drop the pixels accepted with the smaller windows and those the larger window's border
     // excludes (it only grows).
+    const bool capped = j.capped;
     size_t kept = 0;
     for (const int x : open) {
       open[kept] = x;
-      kept += (st[x] == 0) & (x >= r) & (x < W - r) & mayOpen(x);
+      kept += (st[x] == 0) & (x >= r) & (x < W - r) & (!capped | !j.narrowed(x));
     }
     open.resize(kept);
-    open_level = c.level;
-    n_open = static_cast<int>(kept);
-  } else {
-    open.resize(W);
-    n_open = openColumns(r, W - r, rlo, rhi, st, capped, dmin, dmax, open.data());
-    open.resize(n_open);
+    (*c.open_level)[j.y] = c.level;
+    return static_cast<int>(kept);
   }
-  // The engine choice only decides speed: both give the same values.
-  // (The dense engines activate pixels row-wide, without the list: not with the cap.)
-  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y] && !capped;
-  if (!dense && c.level > 0) open_level = c.level;  // the list just built or filtered
-  if (n_open == 0) return;
+  open.resize(W);
+  const int n_open = openColumns(r, W - r, rlo, rhi, st, j.capped, j.dmin, j.dmax, open.data());
+  open.resize(n_open);
+  return n_open;
+}
+
+/// The window statistics the row's search needs. Dense: the effective range of each pixel (its
+/// requested range, cut so that both windows lie inside the images; empty outside [r, W - r)),
+/// also for pixels that are not matched themselves (their ranges bound the right-to-left
+/// profiles), and every column's statistics. Sparse with uniform ranges: the NCC statistics of
+/// the columns any open pixel's profiles or right-to-left checks can touch (within the disparity
+/// span of an open pixel), vectorised; structure values lazily. With per-pixel ranges (narrow:
+/// priors) few columns are touched: computed lazily instead.
+void prepareStatistics(const RowJob& j, bool dense) {
+  const WindowLevel& c = j.c;
+  WorkerScratch& s = j.s;
+  const int W = j.W, r = j.r, y = j.y;
   if (dense) {
-    // Effective range of each pixel at this window: its requested range, cut so that both
-    // windows lie inside the images (empty outside [r, W - r)), also for pixels that are not
-    // matched themselves (their ranges bound the right-to-left profiles).
-    denseRanges(W, r, rlo, rhi, s.eff_lo.data(), s.eff_hi.data(), s.eff_lo_f.data(),
+    denseRanges(W, r, j.rlo, j.rhi, s.eff_lo.data(), s.eff_hi.data(), s.eff_lo_f.data(),
                 s.eff_hi_f.data());
     computeRowMaps(c, s, y);
-  } else {
-    // The NCC statistics of the columns any open pixel's profiles or right-to-left checks can
-    // touch (within the disparity span of an open pixel), vectorised; structure values lazily.
-    // With per-pixel ranges (narrow: priors) few columns are touched: computed lazily instead.
-    if (c.uniform_ranges) {
-      // Open pixel x reads right statistics at x - d and, through the right-to-left profile of
-      // x - d, left statistics at x - d + d' (d, d' in the range): columns x + lo_off .. x +
-      // hi_off. Merged over the open pixels, so gaps between clusters of open pixels are skipped.
-      const int lo_off = std::min({0, -c.dmax, c.dmin - c.dmax});
-      const int hi_off = std::max({0, -c.dmin, c.dmax - c.dmin});
-      int ia = -1, ib = -2;
-      for (const int x : open) {
-        const int a = x + lo_off, b = x + hi_off;
-        if (a > ib + 1) {
-          if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
-          ia = a;
-        }
-        ib = std::max(ib, b);
-      }
-      if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
-    }
+    return;
   }
-  // Active = open, effective range of at least 3 values (an interior maximum needs two
-  // neighbours), left patch with structure. The other open pixels get their code here.
+  if (!c.uniform_ranges) return;
+  // Open pixel x reads right statistics at x - d and, through the right-to-left profile of
+  // x - d, left statistics at x - d + d' (d, d' in the range): columns x + lo_off .. x +
+  // hi_off. Merged over the open pixels, so gaps between clusters of open pixels are skipped.
+  const int lo_off = std::min({0, -c.dmax, c.dmin - c.dmax});
+  const int hi_off = std::max({0, -c.dmin, c.dmax - c.dmin});
+  int ia = -1, ib = -2;
+  for (const int x : (*c.open_rows)[y]) {
+    const int a = x + lo_off, b = x + hi_off;
+    if (a > ib + 1) {
+      if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
+      ia = a;
+    }
+    ib = std::max(ib, b);
+  }
+  if (ia <= ib) computeRowMaps(c, s, y, false, std::max(r, ia), std::min(W - 1 - r, ib));
+}
+
+/// Selects the active pixels: open, an effective range of at least 3 values (an interior maximum
+/// needs two neighbours), a left patch with structure; the other open pixels get their code
+/// here. Dense rows mark them in act (branch-free over the whole row: the effective ranges and
+/// structure values are all at hand), sparse rows list them in s.active. Resets the peak
+/// analysis of the active pixels. Returns whether any pixel is active.
+bool activatePixels(const RowJob& j, bool dense) {
+  const WindowLevel& c = j.c;
+  WorkerScratch& s = j.s;
+  const int W = j.W;
+  uint8_t* code = j.code;
   s.active.clear();
   if (dense) {
-    // Branch-free over the whole row: the effective ranges and structure values are all at
-    // hand. act[x] = 1 marks the active pixels (the dense engines' list).
-    const int na = denseActive(W, r, rlo, rhi, st, s.eff_lo.data(), s.eff_hi.data(),
-                               s.maps.gamma_l.data(), gmin, code, s.act.data());
-    if (na == 0) return;
+    const int na = denseActive(W, j.r, j.rlo, j.rhi, j.st, s.eff_lo.data(), s.eff_hi.data(),
+                               s.maps.gamma_l.data(), j.gmin, code, s.act.data());
+    if (na == 0) return false;
     std::fill(s.best.begin(), s.best.begin() + W, kNegInf);
     std::fill(s.second.begin(), s.second.begin() + W, kNegInf);
     std::fill(s.best_d.begin(), s.best_d.begin() + W, 0.f);
     std::fill(s.best_l.begin(), s.best_l.begin() + W, 0.f);
     std::fill(s.best_r.begin(), s.best_r.begin() + W, 0.f);
-  } else {
-    for (const int x : open) {
-      int lo, hi;
-      if (!effectiveRange(c, s, x, &lo, &hi)) continue;
-      if (hi - lo < 2) {
-        code[x] = kCodeNoPeak;
-        continue;
-      }
-      needGammaL(c, s, x, y);
-      if (!(s.maps.gamma_l[x] > gmin)) {
-        code[x] = kCodeRejectStructure;
-        continue;
-      }
-      s.active.push_back(x);
-    }
-    if (s.active.empty()) return;
-    for (int x : s.active) {
-      s.best[x] = s.second[x] = kNegInf;
-      s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
-    }
+    return true;
   }
+  const float gmin = j.gmin;
+  for (const int x : (*c.open_rows)[j.y]) {
+    int lo, hi;
+    if (!effectiveRange(c, s, x, &lo, &hi)) continue;
+    if (hi - lo < 2) {
+      code[x] = kCodeNoPeak;
+      continue;
+    }
+    needGammaL(c, s, x, j.y);
+    if (!(s.maps.gamma_l[x] > gmin)) {
+      code[x] = kCodeRejectStructure;
+      continue;
+    }
+    s.active.push_back(x);
+  }
+  if (s.active.empty()) return false;
+  for (int x : s.active) {
+    s.best[x] = s.second[x] = kNegInf;
+    s.best_d[x] = s.best_l[x] = s.best_r[x] = 0.f;
+  }
+  return true;
+}
 
-  const float delta_min = static_cast<float>(c.mp->delta_min);
-  const float min_ncc_full = static_cast<float>(c.mp->min_ncc);
-  const float min_ncc_narrow = std::max(min_ncc_full, static_cast<float>(c.mp->min_ncc_narrowed));
-  // A pixel whose per-pixel range narrows the search has lost the competitors outside it, so its
-  // best peak must be stronger (min_ncc_narrowed): a prior must not weaken the criteria.
-  auto minNcc = [&](int x) { return narrowed(x) ? min_ncc_narrow : min_ncc_full; };
-  // The discrimination test: best peak above min_ncc and clear of the second by more than
-  // delta_min (a single peak is measured against the lowest NCC, -1).
-  auto peakGap = [&](int x) {
-    const float comp = s.second[x] == kNegInf ? -1.f : s.second[x];
-    return s.best[x] - comp;
-  };
+/// The peak analysis of the active pixels by the row's engine (the choice only decides speed:
+/// every engine gives the same values), and the right-to-left best disparities the decisions
+/// read. A sparse row computes right-to-left profiles only where a pixel passes everything but
+/// the left-right check.
+void searchRow(const RowJob& j, bool dense) {
+  const WindowLevel& c = j.c;
+  WorkerScratch& s = j.s;
+  const int y = j.y;
   if (dense) {
     if (c.uniform_ranges) {
       fullRangeRow(c, s, s, y);
     } else {
       narrowedRow(c, s, s, y);
     }
-  } else {
-    sparseRow(c, s, s, y);
-    // Right-to-left profiles only where a pixel passes everything but the left-right check.
-    s.cand_q.clear();
-    for (int x : s.active) {
-      if (s.best[x] == kNegInf) continue;
-      const int q = x - static_cast<int>(s.best_d[x]);
-      needGammaR(c, s, q, y);
-      if (!(s.maps.gamma_r[q] > gmin) || !(peakGap(x) > delta_min) || s.best[x] < minNcc(x)) {
-        continue;
-      }
-      s.cand_q.push_back(q);
-    }
-    std::sort(s.cand_q.begin(), s.cand_q.end());
-    s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
-    for (int q : s.cand_q) sparseRightToLeft(c, s, s, q, y);
+    return;
   }
+  sparseRow(c, s, s, y);
+  const float gmin = j.gmin, delta_min = j.delta_min;
+  s.cand_q.clear();
+  for (int x : s.active) {
+    if (s.best[x] == kNegInf) continue;
+    const int q = x - static_cast<int>(s.best_d[x]);
+    needGammaR(c, s, q, y);
+    if (!(s.maps.gamma_r[q] > gmin) || !(j.peakGap(x) > delta_min) || s.best[x] < j.minNcc(x)) {
+      continue;
+    }
+    s.cand_q.push_back(q);
+  }
+  std::sort(s.cand_q.begin(), s.cand_q.end());
+  s.cand_q.erase(std::unique(s.cand_q.begin(), s.cand_q.end()), s.cand_q.end());
+  for (int q : s.cand_q) sparseRightToLeft(c, s, s, q, y);
+}
 
-  // Decide each active pixel, criteria in the paper's order.
-  float* disp = c.out->disparity.ptr<float>(y);
-  float* conf = c.out->confidence.ptr<float>(y);
-  uint8_t* stw = c.state->ptr<uint8_t>(y);
-  uint8_t* widx = c.window_idx->ptr<uint8_t>(y);
+/// Row y's outputs that an accepted pixel writes (and code, which every decision writes).
+struct RowOutputs {
+  uint8_t* code;
+  float* disp;
+  float* conf;
+  uint8_t* stw;   // state: 1 = accepted
+  uint8_t* widx;  // window index
+};
+
+/// decideDense's arguments for the columns [r, W - r) of a dense row.
+DecideArgs denseDecideArgs(const RowJob& j, const RowOutputs& o, float eps, bool subpixel) {
+  const WorkerScratch& s = j.s;
+  DecideArgs g;
+  g.x0 = j.r;
+  g.x1 = j.W - j.r;
+  g.act = s.act.data();
+  g.best = s.best.data();
+  g.second = s.second.data();
+  g.best_d = s.best_d.data();
+  g.best_l = s.best_l.data();
+  g.best_r = s.best_r.data();
+  g.gamma_r = s.maps.gamma_r.data();
+  g.rl_best_d = s.rl_best_d.data();
+  g.rlo = j.rlo;
+  g.rhi = j.rhi;
+  g.dmin = j.dmin;
+  g.dmax = j.dmax;
+  g.level = j.c.level;
+  g.gmin = j.gmin;
+  g.delta_min = j.delta_min;
+  g.min_ncc_full = j.min_ncc_full;
+  g.min_ncc_narrow = j.min_ncc_narrow;
+  g.eps = eps;
+  g.subpixel = subpixel;
+  g.code = o.code;
+  g.stw = o.stw;
+  g.widx = o.widx;
+  g.disp = o.disp;
+  g.conf = o.conf;
+  return g;
+}
+
+/// Decides each active pixel, criteria in the paper's order, without branches on the criteria.
+/// Every value a decision depends on is at hand: dense rows computed the whole row, sparse rows
+/// the structure values of every peak's right pixel and the right-to-left profiles of every
+/// pixel that passes all but the left-right check. Other reads (the right pixel of a pixel
+/// without a peak - best_d 0, so inside the row -, a right-to-left value behind a failed
+/// criterion) cannot change the code, which takes the first failure.
+void decideRow(const RowJob& j, bool dense) {
+  const WindowLevel& c = j.c;
+  const WorkerScratch& s = j.s;
+  const int y = j.y;
+  const RowOutputs o{j.code, c.out->disparity.ptr<float>(y), c.out->confidence.ptr<float>(y),
+                     c.state->ptr<uint8_t>(y), c.window_idx->ptr<uint8_t>(y)};
   const float eps = static_cast<float>(c.mp->epsilon_px);
-  // Without branches on the criteria. Every value a decision depends on is at hand: dense rows
-  // computed the whole row, sparse rows the structure values of every peak's right pixel and the
-  // right-to-left profiles of every pixel that passes all but the left-right check. Other reads
-  // (the right pixel of a pixel without a peak - best_d 0, so inside the row -, a right-to-left
-  // value behind a failed criterion) cannot change the code, which takes the first failure.
+  const float gmin = j.gmin, delta_min = j.delta_min;
   const uint8_t accepted = static_cast<uint8_t>(kCodeAcceptedBase + c.level);
   const bool subpixel = c.mp->subpixel;
   auto decide = [&](int x) {
     const float b = s.best[x];
     const int bd = static_cast<int>(s.best_d[x]);
     const int q = x - bd;
-    const float delta = peakGap(x);
+    const float delta = j.peakGap(x);
     const bool no_peak = b == kNegInf;
     const bool flat = !(s.maps.gamma_r[q] > gmin);
-    const bool gap = !(delta > delta_min) || b < minNcc(x);
+    const bool gap = !(delta > delta_min) || b < j.minNcc(x);
     const bool lr = !(std::fabs(static_cast<float>(bd) - s.rl_best_d[q]) < eps);
     const uint8_t cd = no_peak ? uint8_t{kCodeNoPeak}
                        : flat  ? uint8_t{kCodeRejectStructure}
                        : gap   ? uint8_t{kCodeRejectPeakGap}
                        : lr    ? uint8_t{kCodeRejectLeftRight}
                                : accepted;
-    code[x] = cd;
+    o.code[x] = cd;
     if (cd != accepted) return;
     float sub = 0.f;
     if (subpixel) {
       const float den = s.best_l[x] - 2.f * b + s.best_r[x];
       if (den < 0.f) sub = std::clamp(0.5f * (s.best_l[x] - s.best_r[x]) / den, -0.5f, 0.5f);
     }
-    disp[x] = static_cast<float>(bd) + sub;
-    conf[x] = std::clamp(delta, 0.f, 1.f);
-    stw[x] = 1;
-    widx[x] = static_cast<uint8_t>(c.level);
+    o.disp[x] = static_cast<float>(bd) + sub;
+    o.conf[x] = std::clamp(delta, 0.f, 1.f);
+    o.stw[x] = 1;
+    o.widx[x] = static_cast<uint8_t>(c.level);
   };
   if (dense) {
     // The active pixels span the row: eight columns at a time, the rest one by one.
-    DecideArgs g;
-    g.x0 = r;
-    g.x1 = W - r;
-    g.act = s.act.data();
-    g.best = s.best.data();
-    g.second = s.second.data();
-    g.best_d = s.best_d.data();
-    g.best_l = s.best_l.data();
-    g.best_r = s.best_r.data();
-    g.gamma_r = s.maps.gamma_r.data();
-    g.rl_best_d = s.rl_best_d.data();
-    g.rlo = rlo;
-    g.rhi = rhi;
-    g.dmin = c.dmin;
-    g.dmax = c.dmax;
-    g.level = c.level;
-    g.gmin = gmin;
-    g.delta_min = delta_min;
-    g.min_ncc_full = min_ncc_full;
-    g.min_ncc_narrow = min_ncc_narrow;
-    g.eps = eps;
-    g.subpixel = subpixel;
-    g.code = code;
-    g.stw = stw;
-    g.widx = widx;
-    g.disp = disp;
-    g.conf = conf;
-    const int done = decideDense(g);
-    for (int x = done; x < W - r; ++x) {
+    const int done = decideDense(denseDecideArgs(j, o, eps, subpixel));
+    for (int x = done; x < j.W - j.r; ++x) {
       if (s.act[x] > 0.f) decide(x);
     }
   } else {
     for (const int x : s.active) decide(x);
   }
+}
+
+}  // namespace
+
+/// Match the active pixels of row y at one window size; writes only row y of the outputs.
+void matchRow(const WindowLevel& c, int y, WorkerScratch& s) {
+  if (y < c.r || y >= c.height - c.r) return;
+  ++s.stamp;
+  const RowJob j(c, y, s);
+  const int n_open = countOpenPixels(j);
+  // Dense when most of the row is open (the first window): every column's range and statistics
+  // are then needed and computed row-wide, and openness is tested row-wide too. The dense
+  // engines activate pixels row-wide, without the list: not with the cap.
+  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y] && !j.capped;
+  if (!dense && c.level > 0) (*c.open_level)[y] = c.level;  // the list just built or filtered
+  if (n_open == 0) return;
+  prepareStatistics(j, dense);
+  if (!activatePixels(j, dense)) return;
+  searchRow(j, dense);
+  decideRow(j, dense);
 }
 
 }  // namespace detail
