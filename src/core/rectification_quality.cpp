@@ -86,6 +86,272 @@ ES_KERNEL void patchSums(const float* band, int stride, const float* lp, int blo
   }
 }
 
+/// Patch centres whose whole search (+-kPatchMaxDy rows, the disparity range's columns) stays
+/// inside the image: rows y_lo .. y_hi, columns x_lo .. x_hi.
+struct PatchCentres {
+  int y_lo, y_hi, x_lo, x_hi;
+  bool empty() const { return y_lo > y_hi || x_lo > x_hi; }
+};
+
+PatchCentres patchCentres(int W, int H) {
+  const int h = kPatchHalf, V = kPatchMaxDy;
+  return PatchCentres{h + V, H - 1 - h - V, h + 1, W - 2 - h};
+}
+
+// The squared central differences in x and in y, once per pixel, into gx2 and gy2 (zeroed by
+// the caller; exact integers; rows 0 and H - 1 and the border columns stay unused).
+void squaredDifferences(const cv::Mat& left_gray, cv::Mat& gx2, cv::Mat& gy2) {
+  const int W = left_gray.cols, H = left_gray.rows;
+  for (int y = 1; y < H - 1; ++y) {
+    const uint8_t* up = left_gray.ptr<uint8_t>(y - 1);
+    const uint8_t* row = left_gray.ptr<uint8_t>(y);
+    const uint8_t* down = left_gray.ptr<uint8_t>(y + 1);
+    float* gx = gx2.ptr<float>(y);
+    float* gy = gy2.ptr<float>(y);
+    for (int x = 1; x < W - 1; ++x) {
+      const float dx = float(row[x + 1]) - float(row[x - 1]);
+      const float dy = float(down[x]) - float(up[x]);
+      gx[x] = dx * dx;
+      gy[x] = dy * dy;
+    }
+  }
+}
+
+// Structure of every candidate centre: the patch sums of the squared central differences in x
+// and in y (column sums, then a running sum along the row); the score is the smaller mean. A
+// patch is usable when both are large: texture in y fixes the vertical offset, texture in x the
+// disparity.
+cv::Mat structureScores(const cv::Mat& left_gray, const PatchCentres& c) {
+  const int W = left_gray.cols, H = left_gray.rows;
+  const int h = kPatchHalf, n = kPatchSide * kPatchSide;
+  cv::Mat gx2(H, W, CV_32F, cv::Scalar(0.f)), gy2(H, W, CV_32F, cv::Scalar(0.f));
+  squaredDifferences(left_gray, gx2, gy2);
+  const int cw = W - 2;  // columns 1 .. W - 2 have central differences
+  std::vector<double> gx_col(size_t(cw), 0.0), gy_col(size_t(cw), 0.0);
+  cv::Mat score(H, W, CV_32F, cv::Scalar(0.f));
+  for (int y = c.y_lo - h; y <= c.y_hi + h; ++y) {
+    const float* gx = gx2.ptr<float>(y);
+    const float* gy = gy2.ptr<float>(y);
+    for (int x = 1; x < W - 1; ++x) {
+      gx_col[size_t(x - 1)] += gx[x];
+      gy_col[size_t(x - 1)] += gy[x];
+    }
+    const int yo = y - 2 * h - 1;  // the row that leaves the column window
+    if (yo >= c.y_lo - h) {
+      const float* ox = gx2.ptr<float>(yo);
+      const float* oy = gy2.ptr<float>(yo);
+      for (int x = 1; x < W - 1; ++x) {
+        gx_col[size_t(x - 1)] -= ox[x];
+        gy_col[size_t(x - 1)] -= oy[x];
+      }
+    }
+    const int yc = y - h;  // the centre row whose window is complete
+    if (yc < c.y_lo) continue;
+    float* sc = score.ptr<float>(yc);
+    double sx = 0.0, sy = 0.0;
+    for (int i = 0; i < 2 * h + 1; ++i) {
+      sx += gx_col[size_t(i)];
+      sy += gy_col[size_t(i)];
+    }
+    for (int x = 1 + h;; ++x) {  // window columns x - h .. x + h (difference columns 1 .. W - 2)
+      sc[x] = float(std::min(sx, sy) / n);
+      if (x + h + 1 > W - 2) break;
+      sx += gx_col[size_t(x + h)] - gx_col[size_t(x - h - 1)];
+      sy += gy_col[size_t(x + h)] - gy_col[size_t(x - h - 1)];
+    }
+  }
+  return score;
+}
+
+/// The best-structured centre of the grid cell whose top-left centre is (cx, cy), when one
+/// scores above kPatchMinGradSq.
+bool bestCentreOfCell(const cv::Mat& score, const PatchCentres& c, int cx, int cy, int cell,
+                      int* bx, int* by) {
+  *bx = *by = -1;
+  float best_score = float(kPatchMinGradSq);
+  for (int y = cy; y <= std::min(c.y_hi, cy + cell - 1); ++y) {
+    const float* sc = score.ptr<float>(y);
+    for (int x = cx; x <= std::min(c.x_hi, cx + cell - 1); ++x) {
+      if (sc[x] > best_score) {
+        best_score = sc[x];
+        *bx = x;
+        *by = y;
+      }
+    }
+  }
+  return *bx >= 0;
+}
+
+/// The buffers of the patch searches, kept from one patch to the next: the zero-mean left patch,
+/// the ZNCC table, the band of right pixels a patch is searched in, and one offset's sums for
+/// every disparity (patchSums), in whole vectors.
+struct PatchSearch {
+  int min_disparity, max_disparity;
+  int band_rows, band_stride;
+  std::vector<float> lp, ncc, band, cross, rs, rs2;
+
+  PatchSearch(int min_d, int max_d) : min_disparity(min_d), max_disparity(max_d) {
+    const int nd_pad = (std::max(0, max_d - min_d + 1) + 7) / 8 * 8;
+    band_rows = 2 * (kPatchMaxDy + kPatchHalf) + 1;
+    band_stride = nd_pad + 2 * kPatchHalf + 8;
+    lp.assign(size_t(kPatchSide * kPatchSide), 0.f);
+    band.resize(static_cast<size_t>(band_rows) * band_stride);
+    cross.resize(static_cast<size_t>(nd_pad));
+    rs = cross;
+    rs2 = cross;
+  }
+};
+
+/// The left patch centred on (bx, by), zero-mean, into s.lp; @return its squared norm.
+double zeroMeanLeftPatch(const cv::Mat& left_gray, int bx, int by, PatchSearch& s) {
+  const int h = kPatchHalf, n = kPatchSide * kPatchSide;
+  double lsum = 0.0;
+  for (int dy = -h; dy <= h; ++dy) {
+    const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
+    for (int dx = -h; dx <= h; ++dx) lsum += r[bx + dx];
+  }
+  const float lmean = float(lsum / n);
+  double lnorm2 = 0.0;
+  for (int dy = -h, k = 0; dy <= h; ++dy) {
+    const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
+    for (int dx = -h; dx <= h; ++dx, ++k) {
+      s.lp[size_t(k)] = float(r[bx + dx]) - lmean;
+      lnorm2 += double(s.lp[size_t(k)]) * s.lp[size_t(k)];
+    }
+  }
+  return lnorm2;
+}
+
+// ZNCC of the left patch (s.lp, squared norm lnorm2) over every vertical offset and the nd
+// disparities d_hi - nd + 1 .. d_hi, into s.ncc (row v + V, column d - d_lo). The right patches
+// of all of them lie in one band of rows and columns, widened to floats once: rows
+// by - V - h .. by + V + h, columns from bx - d_hi - h, the patch at column bx - d_hi first
+// (j = d_hi - d).
+void patchNccTable(const cv::Mat& right_gray, int bx, int by, int d_hi, int nd, double lnorm2,
+                   PatchSearch& s) {
+  const int h = kPatchHalf, V = kPatchMaxDy, n = kPatchSide * kPatchSide;
+  const int blocks = (nd + 7) / 8;
+  for (int y = 0; y < s.band_rows; ++y) {
+    const uint8_t* src = right_gray.ptr<uint8_t>(by - V - h + y) + (bx - d_hi - h);
+    float* dst = s.band.data() + size_t(y) * s.band_stride;
+    for (int x = 0; x < nd + 2 * h; ++x) dst[x] = src[x];
+    std::fill(dst + nd + 2 * h, dst + s.band_stride, 0.f);
+  }
+  s.ncc.assign(size_t((2 * V + 1) * nd), -1.f);
+  for (int v = -V; v <= V; ++v) {
+    patchSums(s.band.data() + size_t(v + V) * s.band_stride, s.band_stride, s.lp.data(), blocks,
+              s.cross.data(), s.rs.data(), s.rs2.data());
+    for (int j = 0; j < nd; ++j) {
+      const double var = double(s.rs2[size_t(j)]) - double(s.rs[size_t(j)]) * s.rs[size_t(j)] / n;
+      s.ncc[size_t((v + V) * nd + (nd - 1 - j))] =
+          var > 0.0 ? float(s.cross[size_t(j)] / std::sqrt(lnorm2 * var)) : -1.f;
+    }
+  }
+}
+
+/// The peak of a ZNCC table (2 kPatchMaxDy + 1 rows of nd): its score, row bv and column bd,
+/// and the best score 3 or more disparities away from it (any offset).
+struct NccPeak {
+  float best = -2.f, other = -1.f;
+  int bv = 0, bd = 0;
+};
+
+NccPeak nccPeak(const std::vector<float>& ncc, int nd) {
+  const int V = kPatchMaxDy;
+  NccPeak p;
+  for (int v = 0; v < 2 * V + 1; ++v) {
+    for (int d = 0; d < nd; ++d) {
+      if (ncc[size_t(v * nd + d)] > p.best) {
+        p.best = ncc[size_t(v * nd + d)];
+        p.bv = v;
+        p.bd = d;
+      }
+    }
+  }
+  for (int v = 0; v < 2 * V + 1; ++v) {
+    for (int d = 0; d < nd; ++d) {
+      if (std::abs(d - p.bd) >= 3) p.other = std::max(p.other, ncc[size_t(v * nd + d)]);
+    }
+  }
+  return p;
+}
+
+/// The vertical offset of a peak, px: its row, refined by a parabola through the rows above and
+/// below when both exist and it curves down (by at most half a row).
+double subpixelOffset(const std::vector<float>& ncc, int nd, const NccPeak& p) {
+  const int V = kPatchMaxDy;
+  double off = double(p.bv - V);
+  if (p.bv > 0 && p.bv < 2 * V) {
+    const double a = ncc[size_t((p.bv - 1) * nd + p.bd)], b = p.best,
+                 c = ncc[size_t((p.bv + 1) * nd + p.bd)];
+    const double den = a - 2.0 * b + c;
+    if (den < 0.0) off += std::clamp(0.5 * (a - c) / den, -0.5, 0.5);
+  }
+  return off;
+}
+
+/// Searches the right image for the left patch centred on (bx, by); @return true with
+/// @p match = (right x, y, signed vertical offset) for a reliable match.
+bool matchPatch(const cv::Mat& left_gray, const cv::Mat& right_gray, int bx, int by, PatchSearch& s,
+                cv::Vec3d* match) {
+  const int W = left_gray.cols, h = kPatchHalf;
+  // Disparities whose right patch lies inside the image.
+  const int d_lo = std::max(s.min_disparity, bx - (W - 1 - h));
+  const int d_hi = std::min(s.max_disparity, bx - h);
+  const int nd = d_hi - d_lo + 1;
+  if (nd < 3) return false;
+  const double lnorm2 = zeroMeanLeftPatch(left_gray, bx, by, s);
+  if (!(lnorm2 > 0.0)) return false;
+  patchNccTable(right_gray, bx, by, d_hi, nd, lnorm2, s);
+  const NccPeak p = nccPeak(s.ncc, nd);
+  if (p.best < kPatchMinNcc || p.best - p.other < kPatchMinGap) return false;
+  if (p.bd == 0 || p.bd == nd - 1) return false;  // the disparity range cuts the peak
+  *match = cv::Vec3d(double(bx - (d_lo + p.bd)), double(by), subpixelOffset(s.ncc, nd, p));
+  return true;
+}
+
+/// One patch per cell of a grid (about max_patches cells; 0: one per 16 x 16 px): the
+/// best-structured centre of the cell, searched in the right image. Appends the reliable
+/// matches to @p matches; @return the number of cells with a textured patch.
+int matchGridPatches(const cv::Mat& left_gray, const cv::Mat& right_gray, const cv::Mat& score,
+                     const PatchCentres& c, int min_disparity, int max_disparity, int max_patches,
+                     std::vector<cv::Vec3d>* matches) {
+  const int W = left_gray.cols, H = left_gray.rows;
+  const int target = max_patches > 0 ? max_patches : (W * H) / (16 * 16);
+  const int cell = std::max(16, int(std::sqrt(double(W) * H / std::max(1, target))));
+  int textured = 0;  // cells with a textured patch
+  PatchSearch search(min_disparity, max_disparity);
+  for (int cy = c.y_lo; cy <= c.y_hi; cy += cell) {
+    for (int cx = c.x_lo; cx <= c.x_hi; cx += cell) {
+      int bx, by;
+      if (!bestCentreOfCell(score, c, cx, cy, cell, &bx, &by)) continue;
+      ++textured;
+      cv::Vec3d m;
+      if (matchPatch(left_gray, right_gray, bx, by, search, &m)) matches->push_back(m);
+    }
+  }
+  return textured;
+}
+
+/// The message of a measurement with too few reliable matches; sets @p misaligned when most
+/// textured patches found nothing.
+std::string tooFewMatchesMessage(size_t matches, int textured, int min_disparity, int max_disparity,
+                                 bool* misaligned) {
+  std::ostringstream m;
+  m << "too few reliable patch matches to measure the rectification (" << matches << " of "
+    << textured << " textured patches";
+  if (textured >= 32 && int(matches) * 4 < textured) {
+    // Most textured patches found nothing within +-8 px rows and the disparity range: warn,
+    // as for a large offset.
+    m << "; rows misaligned by more than " << kPatchMaxDy
+      << " px, views that differ, or disparities outside [" << min_disparity << ", "
+      << max_disparity << "]";
+    *misaligned = true;
+  }
+  m << ")";
+  return m.str();
+}
+
 }  // namespace
 
 int fitRowOffset(const std::vector<cv::Vec3d>& matches, cv::Vec3d* model) {
@@ -137,6 +403,21 @@ int fitRowOffset(const std::vector<cv::Vec3d>& matches, cv::Vec3d* model) {
   return used;
 }
 
+namespace {
+
+/// The figures of a measurement from its matches: the |offset| statistics and the row offset
+/// model (fitRowOffset).
+void recordOffsets(const std::vector<cv::Vec3d>& matches, RectificationQuality& q) {
+  q.num_matches = int(matches.size());
+  std::vector<double> offsets(matches.size());
+  for (size_t i = 0; i < matches.size(); ++i) offsets[i] = std::abs(matches[i][2]);
+  detail::offsetStatistics(offsets, &q.median_offset_px, &q.p90_offset_px);
+  q.row_offset_matches = fitRowOffset(matches, &q.row_offset);
+  q.valid = true;
+}
+
+}  // namespace
+
 RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const cv::Mat& right_gray,
                                                 int min_disparity, int max_disparity,
                                                 int max_patches) {
@@ -146,188 +427,21 @@ RectificationQuality measureRowAlignmentPatches(const cv::Mat& left_gray, const 
     q.message = "row alignment: needs two CV_8UC1 images of one size and min <= max disparity";
     return q;
   }
-  const int W = left_gray.cols, H = left_gray.rows;
-  const int h = kPatchHalf, V = kPatchMaxDy, n = (2 * h + 1) * (2 * h + 1);
-  const int y_lo = h + V, y_hi = H - 1 - h - V;  // patch centres: the search stays inside
-  const int x_lo = h + 1, x_hi = W - 2 - h;
-  if (y_lo > y_hi || x_lo > x_hi) {
+  const PatchCentres centres = patchCentres(left_gray.cols, left_gray.rows);
+  if (centres.empty()) {
     q.message = "row alignment: images too small to measure";
     return q;
   }
-  // Structure of every candidate centre: the patch sums of the squared central differences in x
-  // and in y (column sums, then a running sum along the row). A patch is usable when both are
-  // large: texture in y fixes the vertical offset, texture in x the disparity. The squared
-  // differences once per pixel (exact integers; rows 0 and H - 1 and the border columns unused).
-  cv::Mat gx2(H, W, CV_32F, cv::Scalar(0.f)), gy2(H, W, CV_32F, cv::Scalar(0.f));
-  for (int y = 1; y < H - 1; ++y) {
-    const uint8_t* up = left_gray.ptr<uint8_t>(y - 1);
-    const uint8_t* row = left_gray.ptr<uint8_t>(y);
-    const uint8_t* down = left_gray.ptr<uint8_t>(y + 1);
-    float* gx = gx2.ptr<float>(y);
-    float* gy = gy2.ptr<float>(y);
-    for (int x = 1; x < W - 1; ++x) {
-      const float dx = float(row[x + 1]) - float(row[x - 1]);
-      const float dy = float(down[x]) - float(up[x]);
-      gx[x] = dx * dx;
-      gy[x] = dy * dy;
-    }
-  }
-  const int cw = W - 2;  // columns 1 .. W - 2 have central differences
-  std::vector<double> gx_col(size_t(cw), 0.0), gy_col(size_t(cw), 0.0);
-  cv::Mat score(H, W, CV_32F, cv::Scalar(0.f));
-  for (int y = y_lo - h; y <= y_hi + h; ++y) {
-    const float* gx = gx2.ptr<float>(y);
-    const float* gy = gy2.ptr<float>(y);
-    for (int x = 1; x < W - 1; ++x) {
-      gx_col[size_t(x - 1)] += gx[x];
-      gy_col[size_t(x - 1)] += gy[x];
-    }
-    const int yo = y - 2 * h - 1;  // the row that leaves the column window
-    if (yo >= y_lo - h) {
-      const float* ox = gx2.ptr<float>(yo);
-      const float* oy = gy2.ptr<float>(yo);
-      for (int x = 1; x < W - 1; ++x) {
-        gx_col[size_t(x - 1)] -= ox[x];
-        gy_col[size_t(x - 1)] -= oy[x];
-      }
-    }
-    const int yc = y - h;  // the centre row whose window is complete
-    if (yc < y_lo) continue;
-    float* sc = score.ptr<float>(yc);
-    double sx = 0.0, sy = 0.0;
-    for (int i = 0; i < 2 * h + 1; ++i) {
-      sx += gx_col[size_t(i)];
-      sy += gy_col[size_t(i)];
-    }
-    for (int x = 1 + h;; ++x) {  // window columns x - h .. x + h (difference columns 1 .. W - 2)
-      sc[x] = float(std::min(sx, sy) / n);
-      if (x + h + 1 > W - 2) break;
-      sx += gx_col[size_t(x + h)] - gx_col[size_t(x - h - 1)];
-      sy += gy_col[size_t(x + h)] - gy_col[size_t(x - h - 1)];
-    }
-  }
-
-  // One patch per cell of a grid: the best-structured centre of the cell.
-  const int target = max_patches > 0 ? max_patches : (W * H) / (16 * 16);
-  const int cell = std::max(16, int(std::sqrt(double(W) * H / std::max(1, target))));
+  const cv::Mat score = structureScores(left_gray, centres);
   std::vector<cv::Vec3d> matches;  // per reliable patch: right x, y, signed vertical offset
-  int textured = 0;  // cells with a textured patch
-  std::vector<float> lp(size_t(n), 0.f);
-  std::vector<float> ncc;
-  // The band of right pixels a patch is searched in, and one offset's sums for every disparity
-  // (patchSums), in whole vectors.
-  const int nd_pad = (std::max(0, max_disparity - min_disparity + 1) + 7) / 8 * 8;
-  const int band_rows = 2 * (V + h) + 1, band_stride = nd_pad + 2 * h + 8;
-  std::vector<float> band(static_cast<size_t>(band_rows) * band_stride);
-  std::vector<float> cross(static_cast<size_t>(nd_pad)), rs(cross), rs2(cross);
-  for (int cy = y_lo; cy <= y_hi; cy += cell) {
-    for (int cx = x_lo; cx <= x_hi; cx += cell) {
-      int bx = -1, by = -1;
-      float best_score = float(kPatchMinGradSq);
-      for (int y = cy; y <= std::min(y_hi, cy + cell - 1); ++y) {
-        const float* sc = score.ptr<float>(y);
-        for (int x = cx; x <= std::min(x_hi, cx + cell - 1); ++x) {
-          if (sc[x] > best_score) {
-            best_score = sc[x];
-            bx = x;
-            by = y;
-          }
-        }
-      }
-      if (bx < 0) continue;
-      ++textured;
-      // Disparities whose right patch lies inside the image.
-      const int d_lo = std::max(min_disparity, bx - (W - 1 - h));
-      const int d_hi = std::min(max_disparity, bx - h);
-      const int nd = d_hi - d_lo + 1;
-      if (nd < 3) continue;
-      // The left patch, zero-mean, and its norm.
-      double lsum = 0.0;
-      for (int dy = -h; dy <= h; ++dy) {
-        const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
-        for (int dx = -h; dx <= h; ++dx) lsum += r[bx + dx];
-      }
-      const float lmean = float(lsum / n);
-      double lnorm2 = 0.0;
-      for (int dy = -h, k = 0; dy <= h; ++dy) {
-        const uint8_t* r = left_gray.ptr<uint8_t>(by + dy);
-        for (int dx = -h; dx <= h; ++dx, ++k) {
-          lp[size_t(k)] = float(r[bx + dx]) - lmean;
-          lnorm2 += double(lp[size_t(k)]) * lp[size_t(k)];
-        }
-      }
-      if (!(lnorm2 > 0.0)) continue;
-      // ZNCC over every vertical offset and disparity. The right patches of all of them lie in
-      // one band of rows and columns, widened to floats once: rows by - V - h .. by + V + h,
-      // columns from bx - d_hi - h, the patch at column bx - d_hi first (j = d_hi - d).
-      const int blocks = (nd + 7) / 8;
-      for (int y = 0; y < band_rows; ++y) {
-        const uint8_t* src = right_gray.ptr<uint8_t>(by - V - h + y) + (bx - d_hi - h);
-        float* dst = band.data() + size_t(y) * band_stride;
-        for (int x = 0; x < nd + 2 * h; ++x) dst[x] = src[x];
-        std::fill(dst + nd + 2 * h, dst + band_stride, 0.f);
-      }
-      ncc.assign(size_t((2 * V + 1) * nd), -1.f);
-      for (int v = -V; v <= V; ++v) {
-        patchSums(band.data() + size_t(v + V) * band_stride, band_stride, lp.data(), blocks,
-                  cross.data(), rs.data(), rs2.data());
-        for (int j = 0; j < nd; ++j) {
-          const double var = double(rs2[size_t(j)]) - double(rs[size_t(j)]) * rs[size_t(j)] / n;
-          ncc[size_t((v + V) * nd + (nd - 1 - j))] =
-              var > 0.0 ? float(cross[size_t(j)] / std::sqrt(lnorm2 * var)) : -1.f;
-        }
-      }
-      int bv = 0, bd = 0;
-      float best = -2.f;
-      for (int v = 0; v < 2 * V + 1; ++v) {
-        for (int d = 0; d < nd; ++d) {
-          if (ncc[size_t(v * nd + d)] > best) {
-            best = ncc[size_t(v * nd + d)];
-            bv = v;
-            bd = d;
-          }
-        }
-      }
-      float other = -1.f;  // the best match 3 or more disparities away (any offset)
-      for (int v = 0; v < 2 * V + 1; ++v) {
-        for (int d = 0; d < nd; ++d) {
-          if (std::abs(d - bd) >= 3) other = std::max(other, ncc[size_t(v * nd + d)]);
-        }
-      }
-      if (best < kPatchMinNcc || best - other < kPatchMinGap) continue;
-      if (bd == 0 || bd == nd - 1) continue;  // the disparity range cuts the peak
-      double off = double(bv - V);
-      if (bv > 0 && bv < 2 * V) {
-        const double a = ncc[size_t((bv - 1) * nd + bd)], b = best,
-                     c = ncc[size_t((bv + 1) * nd + bd)];
-        const double den = a - 2.0 * b + c;
-        if (den < 0.0) off += std::clamp(0.5 * (a - c) / den, -0.5, 0.5);
-      }
-      matches.push_back(cv::Vec3d(double(bx - (d_lo + bd)), double(by), off));
-    }
-  }
+  const int textured = matchGridPatches(left_gray, right_gray, score, centres, min_disparity,
+                                        max_disparity, max_patches, &matches);
   if (matches.size() < 8) {
-    std::ostringstream m;
-    m << "too few reliable patch matches to measure the rectification (" << matches.size() << " of "
-      << textured << " textured patches";
-    if (textured >= 32 && int(matches.size()) * 4 < textured) {
-      // Most textured patches found nothing within +-8 px rows and the disparity range: warn,
-      // as for a large offset.
-      m << "; rows misaligned by more than " << kPatchMaxDy
-        << " px, views that differ, or disparities outside [" << min_disparity << ", "
-        << max_disparity << "]";
-      q.misaligned = true;
-    }
-    m << ")";
-    q.message = m.str();
+    q.message = tooFewMatchesMessage(matches.size(), textured, min_disparity, max_disparity,
+                                     &q.misaligned);
     return q;
   }
-  q.num_matches = int(matches.size());
-  std::vector<double> offsets(matches.size());
-  for (size_t i = 0; i < matches.size(); ++i) offsets[i] = std::abs(matches[i][2]);
-  detail::offsetStatistics(offsets, &q.median_offset_px, &q.p90_offset_px);
-  q.row_offset_matches = fitRowOffset(matches, &q.row_offset);
-  q.valid = true;
+  recordOffsets(matches, q);
   return q;
 }
 

@@ -324,21 +324,24 @@ bool homographyRectification(const cv::Matx33d& F, const Matches& inliers, const
 
 // ---------------------------------------------------------------------------------------------
 // Pollefeys, Koch, Van Gool 1999.
-bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::Size& size,
-                        PolarRectification* out, std::string* error) {
-  auto fail = [&](const std::string& m) {
-    if (error) *error = m;
-    return false;
-  };
-  const cv::Point2d centre((size.width - 1) / 2.0, (size.height - 1) / 2.0);
-  const double diag = std::hypot(double(size.width), double(size.height));
-  cv::Vec3d el_h, er_h;
-  epipoles(F, &el_h, &er_h);
-  const cv::Point2d el = finiteEpipole(el_h, centre), er = finiteEpipole(er_h, centre);
-  const bool in_l = insideImage(el, size), in_r = insideImage(er, size);
+namespace {
 
-  // Orientation of the half-line transfer (oriented epipolar geometry: e' x x' ~ +F x for all
-  // true correspondences, with one global sign), voted by the inliers.
+/// What the half-line transfer of a polar rectification needs: the fundamental matrix, the
+/// image centre, the finite epipoles, the orientation sign and the radius of the left samples.
+struct PolarTransfer {
+  explicit PolarTransfer(const cv::Matx33d& fundamental) : F(fundamental) {}
+  const cv::Matx33d& F;
+  cv::Point2d centre, el, er;
+  double flip = 1.0;
+  double rho_l = 0.0;
+  bool right_near = true;
+};
+
+/// Orientation of the half-line transfer (oriented epipolar geometry: e' x x' ~ +F x for all
+/// true correspondences, with one global sign), voted by the inliers. @return false with fewer
+/// than 8 votes.
+bool orientTransfer(const cv::Matx33d& F, const Matches& inliers, const cv::Point2d& er,
+                    double* flip) {
   int pos = 0, neg = 0;
   for (size_t i = 0; i < inliers.size(); ++i) {
     const cv::Vec3d l = F * cv::Vec3d(inliers.left[i].x, inliers.left[i].y, 1.0);
@@ -346,100 +349,120 @@ bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::
     const double s = d.dot(inliers.right[i] - er);
     (s >= 0 ? pos : neg)++;
   }
-  if (pos + neg < 8) return fail("too few inliers to orient the epipolar lines");
-  const double flip = neg > pos ? -1.0 : 1.0;
-  const double rho_l = std::max(cv::norm(centre - el), diag / 4);
-  const bool right_near = cv::norm(er - centre) < 10 * diag;
+  if (pos + neg < 8) return false;
+  *flip = neg > pos ? -1.0 : 1.0;
+  return true;
+}
 
-  // Angle (unwrapped near @p prev) of the right half-line corresponding to left angle theta.
-  auto transfer = [&](double theta, double prev, double* phi) {
-    const cv::Point2d p = el + rho_l * cv::Point2d(std::cos(theta), std::sin(theta));
-    const cv::Vec3d l = F * cv::Vec3d(p.x, p.y, 1.0);
-    const double ln = std::hypot(l[0], l[1]);
-    if (!(ln > 0)) return false;
-    const cv::Point2d d = cv::Point2d(l[1], -l[0]) * (flip / ln);
-    double a;
-    if (right_near) {
-      a = std::atan2(d.y, d.x);
-    } else {
-      // Far epipole: the ray from the (clamped) epipole through the line's point nearest the
-      // image centre, so that the clamping does not tilt the line.
-      const double dist = (l[0] * centre.x + l[1] * centre.y + l[2]) / ln;
-      const cv::Point2d q = centre - cv::Point2d(l[0], l[1]) * (dist / ln);
-      const cv::Point2d v = q - er;
-      a = std::atan2(v.y, v.x);
-    }
-    *phi = prev + wrapAngle(a - prev);
-    return true;
-  };
+/// Angle (unwrapped near @p prev) of the right half-line corresponding to left angle theta.
+bool transferAngle(const PolarTransfer& g, double theta, double prev, double* phi) {
+  const cv::Point2d p = g.el + g.rho_l * cv::Point2d(std::cos(theta), std::sin(theta));
+  const cv::Vec3d l = g.F * cv::Vec3d(p.x, p.y, 1.0);
+  const double ln = std::hypot(l[0], l[1]);
+  if (!(ln > 0)) return false;
+  const cv::Point2d d = cv::Point2d(l[1], -l[0]) * (g.flip / ln);
+  double a;
+  if (g.right_near) {
+    a = std::atan2(d.y, d.x);
+  } else {
+    // Far epipole: the ray from the (clamped) epipole through the line's point nearest the
+    // image centre, so that the clamping does not tilt the line.
+    const double dist = (l[0] * g.centre.x + l[1] * g.centre.y + l[2]) / ln;
+    const cv::Point2d q = g.centre - cv::Point2d(l[0], l[1]) * (dist / ln);
+    const cv::Point2d v = q - g.er;
+    a = std::atan2(v.y, v.x);
+  }
+  *phi = prev + wrapAngle(a - prev);
+  return true;
+}
 
-  // Left angular range: full circle around an inner epipole, else the wedge of the corners.
+/// The angular range [t_begin, t_end] of the left half-lines: the full circle around an inner
+/// epipole (in_l), else the wedge of the corners; and the distances of the farthest corner from
+/// each epipole.
+void leftAngularRange(const cv::Size& size, const PolarTransfer& g, bool in_l, double* t_begin,
+                      double* t_end, double* r_far_l, double* r_far_r) {
   const cv::Point2d corners[4] = {
       {0, 0}, {size.width - 1.0, 0}, {size.width - 1.0, size.height - 1.0}, {0, size.height - 1.0}};
-  double t_begin, t_end;
-  double r_far_l = 0, r_far_r = 0;
+  *r_far_l = 0;
+  *r_far_r = 0;
   for (const auto& c : corners) {
-    r_far_l = std::max(r_far_l, cv::norm(c - el));
-    r_far_r = std::max(r_far_r, cv::norm(c - er));
+    *r_far_l = std::max(*r_far_l, cv::norm(c - g.el));
+    *r_far_r = std::max(*r_far_r, cv::norm(c - g.er));
   }
   if (in_l) {
-    t_begin = -kPi;
-    t_end = kPi;
-  } else {
-    const double a_c = std::atan2(centre.y - el.y, centre.x - el.x);
-    double lo = 0, hi = 0;
-    for (const auto& c : corners) {
-      const double d = wrapAngle(std::atan2(c.y - el.y, c.x - el.x) - a_c);
-      lo = std::min(lo, d);
-      hi = std::max(hi, d);
-    }
-    t_begin = a_c + lo;
-    t_end = a_c + hi;
+    *t_begin = -kPi;
+    *t_end = kPi;
+    return;
   }
+  const double a_c = std::atan2(g.centre.y - g.el.y, g.centre.x - g.el.x);
+  double lo = 0, hi = 0;
+  for (const auto& c : corners) {
+    const double d = wrapAngle(std::atan2(c.y - g.el.y, c.x - g.el.x) - a_c);
+    lo = std::min(lo, d);
+    hi = std::max(hi, d);
+  }
+  *t_begin = a_c + lo;
+  *t_end = a_c + hi;
+}
 
-  // March over the left angles: each step moves the farthest image point by at most one pixel
-  // in both images (Pollefeys' rule, with the farthest corner as a conservative bound).
+/// The rows of a polar rectification: per row the left and right half-line angles and the
+/// intervals of distance [r0, r1] along each half-line that lie inside its image.
+struct PolarRows {
   std::vector<double> th, ph;
   std::vector<double> rl0, rl1, rr0, rr1;
+};
+
+// March over the left angles: each step moves the farthest image point by at most one pixel
+// in both images (Pollefeys' rule, with the farthest corner as a conservative bound). Keeps the
+// angles whose half-lines cross both images. @return false with the reason in @p why.
+bool marchAngles(const PolarTransfer& g, const cv::Size& size, double t_begin, double t_end,
+                 double r_far_l, double r_far_r, PolarRows* rows, std::string* why) {
   const size_t max_rows = size_t(20) * size_t(size.width + size.height);
   double theta = t_begin, phi_prev = 0;
-  bool have_prev = false;
-  if (!transfer(theta, 0.0, &phi_prev)) return fail("degenerate fundamental matrix");
+  if (!transferAngle(g, theta, 0.0, &phi_prev)) {
+    *why = "degenerate fundamental matrix";
+    return false;
+  }
   while (theta <= t_end) {
     double phi;
-    if (!transfer(theta, phi_prev, &phi)) return fail("degenerate fundamental matrix");
+    if (!transferAngle(g, theta, phi_prev, &phi)) {
+      *why = "degenerate fundamental matrix";
+      return false;
+    }
     const cv::Point2d ul(std::cos(theta), std::sin(theta)), ur(std::cos(phi), std::sin(phi));
     double a0, a1, b0, b1;
-    if (rayInterval(el, ul, size, &a0, &a1) && rayInterval(er, ur, size, &b0, &b1)) {
-      th.push_back(theta);
-      ph.push_back(phi);
-      rl0.push_back(a0);
-      rl1.push_back(a1);
-      rr0.push_back(b0);
-      rr1.push_back(b1);
-      if (th.size() > max_rows) return fail("polar rectification would exceed 20 (w+h) rows");
+    if (rayInterval(g.el, ul, size, &a0, &a1) && rayInterval(g.er, ur, size, &b0, &b1)) {
+      rows->th.push_back(theta);
+      rows->ph.push_back(phi);
+      rows->rl0.push_back(a0);
+      rows->rl1.push_back(a1);
+      rows->rr0.push_back(b0);
+      rows->rr1.push_back(b1);
+      if (rows->th.size() > max_rows) {
+        *why = "polar rectification would exceed 20 (w+h) rows";
+        return false;
+      }
     }
     double step = 1.0 / r_far_l;
     for (int it = 0; it < 3; ++it) {
       double phi_next;
-      if (!transfer(theta + step, phi, &phi_next)) break;
+      if (!transferAngle(g, theta + step, phi, &phi_next)) break;
       const double moved = std::abs(phi_next - phi) * r_far_r;
       if (moved <= 1.0) break;
       step *= 0.999 / moved;
     }
     phi_prev = phi;
-    have_prev = true;
     theta += step;
   }
-  (void)have_prev;
-  if (th.size() < 2) return fail("the epipolar lines of the two images do not overlap");
+  return true;
+}
 
-  PolarRectification p;
-  p.epipole_left = el;
-  p.epipole_right = er;
+/// The column references of @p p (its epipoles set): with both epipoles outside the images,
+/// columns grow with raw x and the image centres land on the same column; else a column is the
+/// distance from the epipole.
+void columnReferences(const cv::Point2d& centre, bool in_l, bool in_r, PolarRectification& p) {
   if (!in_l && !in_r) {
-    // Columns grow with raw x; the image centres land on the same column.
-    const cv::Point2d dl = centre - el, dr = centre - er;
+    const cv::Point2d dl = centre - p.epipole_left, dr = centre - p.epipole_right;
     p.sign_left = dl.x >= 0 ? 1.0 : -1.0;
     p.sign_right = dr.x >= 0 ? 1.0 : -1.0;
     p.r_ref_left = cv::norm(dl);
@@ -448,28 +471,37 @@ bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::
     p.sign_left = p.sign_right = 1.0;
     p.r_ref_left = p.r_ref_right = 0.0;
   }
-  // The inliers decide whether distances grow the same way along corresponding half-lines.
-  {
-    double mean_l = 0, mean_r = 0, cov = 0;
-    const size_t n = inliers.size();
-    std::vector<double> cl(n), cr(n);
-    for (size_t i = 0; i < n; ++i) {
-      cl[i] = p.sign_left * (cv::norm(inliers.left[i] - el) - p.r_ref_left);
-      cr[i] = p.sign_right * (cv::norm(inliers.right[i] - er) - p.r_ref_right);
-      mean_l += cl[i] / double(n);
-      mean_r += cr[i] / double(n);
-    }
-    for (size_t i = 0; i < n; ++i) cov += (cl[i] - mean_l) * (cr[i] - mean_r);
-    if (cov < 0) p.sign_right = -p.sign_right;
+}
+
+/// The inliers decide whether distances grow the same way along corresponding half-lines (else
+/// the right column sign flips).
+void orientRightColumns(const Matches& inliers, PolarRectification& p) {
+  const cv::Point2d el = p.epipole_left, er = p.epipole_right;
+  double mean_l = 0, mean_r = 0, cov = 0;
+  const size_t n = inliers.size();
+  std::vector<double> cl(n), cr(n);
+  for (size_t i = 0; i < n; ++i) {
+    cl[i] = p.sign_left * (cv::norm(inliers.left[i] - el) - p.r_ref_left);
+    cr[i] = p.sign_right * (cv::norm(inliers.right[i] - er) - p.r_ref_right);
+    mean_l += cl[i] / double(n);
+    mean_r += cr[i] / double(n);
   }
+  for (size_t i = 0; i < n; ++i) cov += (cl[i] - mean_l) * (cr[i] - mean_r);
+  if (cov < 0) p.sign_right = -p.sign_right;
+}
+
+/// The reference column and the width of @p p: every row's interval in both images fits.
+/// @return false (with the reason in @p why) when the result would be too large.
+bool columnRange(const PolarRows& rows, const cv::Size& size, PolarRectification& p,
+                 std::string* why) {
   double cmin = std::numeric_limits<double>::infinity(), cmax = -cmin;
-  for (size_t i = 0; i < th.size(); ++i) {
-    for (double r : {rl0[i], rl1[i]}) {
+  for (size_t i = 0; i < rows.th.size(); ++i) {
+    for (double r : {rows.rl0[i], rows.rl1[i]}) {
       const double c = p.sign_left * (r - p.r_ref_left);
       cmin = std::min(cmin, c);
       cmax = std::max(cmax, c);
     }
-    for (double r : {rr0[i], rr1[i]}) {
+    for (double r : {rows.rr0[i], rows.rr1[i]}) {
       const double c = p.sign_right * (r - p.r_ref_right);
       cmin = std::min(cmin, c);
       cmax = std::max(cmax, c);
@@ -478,25 +510,66 @@ bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::
   p.c_ref = -std::floor(cmin);
   p.width = int(std::ceil(cmax - std::floor(cmin))) + 1;
   if (p.width > 8 * std::max(size.width, size.height) ||
-      double(p.width) * double(th.size()) > 32e6) {
+      double(p.width) * double(rows.th.size()) > 32e6) {
     std::ostringstream m;
-    m << "polar rectification would be " << p.width << "x" << th.size() << " px (too large)";
-    return fail(m.str());
+    m << "polar rectification would be " << p.width << "x" << rows.th.size() << " px (too large)";
+    *why = m.str();
+    return false;
   }
-  // Rows grow with raw y in the left image (away from an outer epipole), so that the output is
-  // upright: a 180 degree turn together with the column sign, never a mirror.
-  bool reverse = false;
-  if (!in_l) {
-    const double a_c = std::atan2(centre.y - el.y, centre.x - el.x);
-    reverse = std::cos(a_c) < 0;
+  return true;
+}
+
+/// Rows grow with raw y in the left image (away from an outer epipole), so that the output is
+/// upright: a 180 degree turn together with the column sign, never a mirror. @return whether
+/// the rows must be reversed.
+bool rowsReversed(const PolarTransfer& g, bool in_l) {
+  if (in_l) return false;
+  const double a_c = std::atan2(g.centre.y - g.el.y, g.centre.x - g.el.x);
+  return std::cos(a_c) < 0;
+}
+
+}  // namespace
+
+bool polarRectification(const cv::Matx33d& F, const Matches& inliers, const cv::Size& size,
+                        PolarRectification* out, std::string* error) {
+  auto fail = [&](const std::string& m) {
+    if (error) *error = m;
+    return false;
+  };
+  PolarTransfer g(F);
+  g.centre = cv::Point2d((size.width - 1) / 2.0, (size.height - 1) / 2.0);
+  const double diag = std::hypot(double(size.width), double(size.height));
+  cv::Vec3d el_h, er_h;
+  epipoles(F, &el_h, &er_h);
+  g.el = finiteEpipole(el_h, g.centre);
+  g.er = finiteEpipole(er_h, g.centre);
+  const bool in_l = insideImage(g.el, size), in_r = insideImage(g.er, size);
+  if (!orientTransfer(F, inliers, g.er, &g.flip)) {
+    return fail("too few inliers to orient the epipolar lines");
   }
-  if (reverse) {
-    std::reverse(th.begin(), th.end());
-    std::reverse(ph.begin(), ph.end());
+  g.rho_l = std::max(cv::norm(g.centre - g.el), diag / 4);
+  g.right_near = cv::norm(g.er - g.centre) < 10 * diag;
+
+  double t_begin, t_end, r_far_l, r_far_r;
+  leftAngularRange(size, g, in_l, &t_begin, &t_end, &r_far_l, &r_far_r);
+  PolarRows rows;
+  std::string why;
+  if (!marchAngles(g, size, t_begin, t_end, r_far_l, r_far_r, &rows, &why)) return fail(why);
+  if (rows.th.size() < 2) return fail("the epipolar lines of the two images do not overlap");
+
+  PolarRectification p;
+  p.epipole_left = g.el;
+  p.epipole_right = g.er;
+  columnReferences(g.centre, in_l, in_r, p);
+  orientRightColumns(inliers, p);
+  if (!columnRange(rows, size, p, &why)) return fail(why);
+  if (rowsReversed(g, in_l)) {
+    std::reverse(rows.th.begin(), rows.th.end());
+    std::reverse(rows.ph.begin(), rows.ph.end());
   }
-  p.theta = th;
-  p.phi = ph;
-  *out = p;
+  p.theta = std::move(rows.th);
+  p.phi = std::move(rows.ph);
+  *out = std::move(p);
   return true;
 }
 

@@ -8,13 +8,8 @@
 
 #include <boost/bind/bind.hpp>
 
-#include "endo_stereo/ros/conversions.hpp"
-
 namespace endo_stereo {
 namespace {
-
-// Latencies kept for the median / p90 in the diagnostics (about 10 s at 25 fps).
-constexpr size_t kLatencyWindow = 250;
 
 // The scheduler's parameters; a RosParams that fails validate() throws its message (the first
 // invalid ROS parameter, as before the scheduler was built).
@@ -339,152 +334,62 @@ bool Reconstruction::withholdFrozen(const Pair& pair) {
   return true;
 }
 
-bool Reconstruction::processPair(const Pair& pair) {
-  // A frozen view came back: what was matched before the freeze was found paired a stale view.
-  if (temporal_reset_pending_.exchange(false)) {
-    pipeline_->reset();
-    restartStepCheck(false);
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    frames_since_reset_ = 0;
-  }
-  // Parameters change only here, between two frames.
-  {
-    std::lock_guard<std::mutex> lock(params_mutex_);
-    if (params_pending_) {
-      params_pending_ = false;
-      try {
-        pipeline_->setParams(params_);
-      } catch (const std::invalid_argument& ex) {
-        ROS_ERROR("%s: new parameters refused by the pipeline: %s", name_.c_str(), ex.what());
-      }
-    }
-  }
-  // Fused and coverage outputs are computed while configured or while someone listens; the
-  // cloud (8 MB at 960x540) only while configured and someone listens to points2, and the left
-  // colour image (conversion + 3-channel remap) only for the cloud, left/image_rect_color or
-  // rgb/image_rect_color.
-  {
-    OutputParams configured;
-    {
-      std::lock_guard<std::mutex> lock(params_mutex_);
-      configured = params_.output;
-    }
-    PipelineParams p = pipeline_->params();
-    const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0 ||
-                            pub_depth_fused_.getNumSubscribers() > 0;
-    const bool want_cov = configured.coverage || pub_coverage_.getNumSubscribers() > 0;
-    const bool want_cloud = configured.point_cloud && pub_points_.getNumSubscribers() > 0;
-    if (p.output.fused != want_fused || p.output.coverage != want_cov ||
-        p.output.point_cloud != want_cloud) {
-      p.output.fused = want_fused;
-      p.output.coverage = want_cov;
-      p.output.point_cloud = want_cloud;
-      pipeline_->setParams(p);
-    }
-    pipeline_->setColorOutput(pub_left_rect_.getNumSubscribers() > 0 ||
-                              pub_rgb_.getNumSubscribers() > 0);
-  }
+void Reconstruction::resetTemporalState() {
+  pipeline_->reset();
+  restartStepCheck(false);
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  frames_since_reset_ = 0;
+}
 
-  // Outputs go in stamp order: a pair not after the last processed one is refused, unless time
-  // went back far enough to be a new stream (frame_scheduler.hpp).
-  const ros::Time stamp = pair.left->header.stamp;
-  StampCheck order;
+void Reconstruction::applyPendingParams() {
+  std::lock_guard<std::mutex> lock(params_mutex_);
+  if (!params_pending_) return;
+  params_pending_ = false;
+  try {
+    pipeline_->setParams(params_);
+  } catch (const std::invalid_argument& ex) {
+    ROS_ERROR("%s: new parameters refused by the pipeline: %s", name_.c_str(), ex.what());
+  }
+}
+
+void Reconstruction::noteProcessed(const ros::Time& stamp) {
   {
     std::lock_guard<std::mutex> lock(sched_mutex_);
-    order = scheduler_.checkStamp(stamp.toSec());
+    scheduler_.stampProcessed(stamp.toSec());
   }
-  if (order.verdict == StampCheck::Verdict::kRestart) {
-    ROS_WARN_THROTTLE(kThrottleS, "%s: time went back by %.3f s (a looping bag or a restarted "
-                      "driver): temporal state reset", name_.c_str(), order.back_s);
-    pipeline_->reset();
-    restartStepCheck(false);
-    std::lock_guard<std::mutex> lock(stats_mutex_);
-    frames_since_reset_ = 0;
-  } else if (order.verdict == StampCheck::Verdict::kOutOfOrder) {
-    std::ostringstream m;
-    m.precision(6);
-    m << std::fixed << "out-of-order pair: stamp " << stamp.toSec()
-      << " s is not after the last processed " << order.last_stamp_s << " s";
-    reject("pair", m.str());
-    return false;
-  }
+  if (!out_.priors_reset) return;
+  noteTemporalReset(stamp);
+  // A new geometry or a stream that went back in time may come with re-synchronised views:
+  // check again. A gap between processed frames (pairs dropped here, a stall) is not news about
+  // the views' synchronisation.
+  if (out_.reset_reason.find("gap of") == std::string::npos) restartStepCheck(false);
+}
 
+bool Reconstruction::processPair(const Pair& pair) {
+  // A frozen view came back: what was matched before the freeze was found paired a stale view.
+  if (temporal_reset_pending_.exchange(false)) resetTemporalState();
+  applyPendingParams();  // parameters change only here, between two frames
+  selectOutputs();
+  const ros::Time stamp = pair.left->header.stamp;
+  if (!checkStampOrder(stamp)) return false;
   std::string error;
   if (!checkPair(pair, &error)) {
     reject("pair", error);
     return false;
   }
-  if (pair.left_info && pair.right_info && usesCameraInfo()) {
-    const StereoCalibration calib = ros_conv::stereoFromCameraInfo(*pair.left_info, *pair.right_info);
-    if (!has_calibration_ || calib != calibration_) {
-      error = pipeline_->setCalibration(calib);
-      if (!error.empty()) {
-        reject("camera_info", error);
-        return false;
-      }
-      if (has_calibration_) geometry_change_ = describeCalibrationChange(calibration_, calib);
-      calibration_ = calib;
-      has_calibration_ = true;
-    }
-  }
-
-  // Views of the message data, no copies: the pair holds the messages until processing ends and
-  // the pipeline only reads its input.
+  if (!applyCalibration(pair)) return false;
   StereoInput in;
-  if (!ros_conv::imageToMat(*pair.left, in.left, &error, false)) {
-    reject("left image", error);
-    return false;
-  }
-  if (!ros_conv::imageToMat(*pair.right, in.right, &error, false)) {
-    reject("right image", error);
-    return false;
-  }
-  in.left_encoding = pair.left->encoding;
-  in.right_encoding = pair.right->encoding;
-  in.stamp_s = stamp.toSec();
+  if (!stereoInput(pair, &in)) return false;
   const ros::WallTime t_process = ros::WallTime::now();
   if (!pipeline_->process(in, out_, &error)) {
     reject("pair", error);
     return false;
   }
-  {
-    std::lock_guard<std::mutex> lock(sched_mutex_);
-    scheduler_.stampProcessed(stamp.toSec());
-  }
-  if (out_.priors_reset) {
-    noteTemporalReset(stamp);
-    // A new geometry or a stream that went back in time may come with re-synchronised views:
-    // check again. A gap between processed frames (pairs dropped here, a stall) is not news about
-    // the views' synchronisation.
-    if (out_.reset_reason.find("gap of") == std::string::npos) restartStepCheck(false);
-  }
+  noteProcessed(stamp);
   const ros::WallTime t_publish = ros::WallTime::now();
   publishOutputs(pair, out_);
   const ros::WallTime t_done = ros::WallTime::now();
-
-  const double latency_ms = (t_done - pair.arrival).toSec() * 1e3;
-  if (!first_pair_logged_) {
-    // The first pair is the slowest (full-range search, fresh buffers, threads started): say
-    // where its time went, once, since the pairs behind it wait for it.
-    first_pair_logged_ = true;
-    ROS_INFO("%s: first pair out %.1f ms after it arrived: waited %.1f, pipeline %.1f "
-             "(preprocess %.1f, rectify %.1f, match %.1f, temporal %.1f, cloud %.1f), "
-             "publishing %.1f ms; later pairs are faster",
-             name_.c_str(), latency_ms, (t_process - pair.arrival).toSec() * 1e3,
-             out_.total_ms, out_.preprocess_ms, out_.rectify_ms, out_.match_ms, out_.temporal_ms,
-             out_.cloud_ms, (t_done - t_publish).toSec() * 1e3);
-  }
-  std::lock_guard<std::mutex> lock(stats_mutex_);
-  latencies_ms_.push_back(latency_ms);
-  if (latencies_ms_.size() > kLatencyWindow) latencies_ms_.pop_front();
-  pipeline_ms_.push_back(out_.total_ms);
-  if (pipeline_ms_.size() > kLatencyWindow) pipeline_ms_.pop_front();
-  last_density_ = out_.match.stats.density();
-  if (out_.rect_quality.valid || out_.rect_quality.misaligned) last_quality_ = out_.rect_quality;
-  last_priors_used_ = out_.priors_used;
-  last_prior_stats_ = out_.prior_stats;
-  // The temporal state a frame used: a reset before it (any reason) starts a new run at 1.
-  frames_since_reset_ = out_.priors_reset ? 1 : frames_since_reset_ + 1;
+  recordFigures(pair, t_process, t_publish, t_done);
   return true;
 }
 

@@ -9,6 +9,9 @@
 namespace endo_stereo {
 namespace {
 
+// Latencies kept for the median / p90 in the diagnostics (about 10 s at 25 fps).
+constexpr size_t kLatencyWindow = 250;
+
 double percentile(std::vector<double> v, double q) {
   if (v.empty()) return std::nan("");
   const size_t k = static_cast<size_t>(std::round(q * (v.size() - 1)));
@@ -17,6 +20,33 @@ double percentile(std::vector<double> v, double q) {
 }
 
 }  // namespace
+
+void Reconstruction::recordFigures(const Pair& pair, const ros::WallTime& t_process,
+                                   const ros::WallTime& t_publish, const ros::WallTime& t_done) {
+  const double latency_ms = (t_done - pair.arrival).toSec() * 1e3;
+  if (!first_pair_logged_) {
+    // The first pair is the slowest (full-range search, fresh buffers, threads started): say
+    // where its time went, once, since the pairs behind it wait for it.
+    first_pair_logged_ = true;
+    ROS_INFO("%s: first pair out %.1f ms after it arrived: waited %.1f, pipeline %.1f "
+             "(preprocess %.1f, rectify %.1f, match %.1f, temporal %.1f, cloud %.1f), "
+             "publishing %.1f ms; later pairs are faster",
+             name_.c_str(), latency_ms, (t_process - pair.arrival).toSec() * 1e3,
+             out_.total_ms, out_.preprocess_ms, out_.rectify_ms, out_.match_ms, out_.temporal_ms,
+             out_.cloud_ms, (t_done - t_publish).toSec() * 1e3);
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  latencies_ms_.push_back(latency_ms);
+  if (latencies_ms_.size() > kLatencyWindow) latencies_ms_.pop_front();
+  pipeline_ms_.push_back(out_.total_ms);
+  if (pipeline_ms_.size() > kLatencyWindow) pipeline_ms_.pop_front();
+  last_density_ = out_.match.stats.density();
+  if (out_.rect_quality.valid || out_.rect_quality.misaligned) last_quality_ = out_.rect_quality;
+  last_priors_used_ = out_.priors_used;
+  last_prior_stats_ = out_.prior_stats;
+  // The temporal state a frame used: a reset before it (any reason) starts a new run at 1.
+  frames_since_reset_ = out_.priors_reset ? 1 : frames_since_reset_ + 1;
+}
 
 std::string Reconstruction::explainSilence(double silent_s) const {
   std::string left = nh_.resolveName(left_topic_), right = nh_.resolveName(right_topic_);

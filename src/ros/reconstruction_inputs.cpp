@@ -144,6 +144,62 @@ bool Reconstruction::checkPair(const Pair& p, std::string* error) {
   return true;
 }
 
+bool Reconstruction::checkStampOrder(const ros::Time& stamp) {
+  // Outputs go in stamp order: a pair not after the last processed one is refused, unless time
+  // went back far enough to be a new stream (frame_scheduler.hpp).
+  StampCheck order;
+  {
+    std::lock_guard<std::mutex> lock(sched_mutex_);
+    order = scheduler_.checkStamp(stamp.toSec());
+  }
+  if (order.verdict == StampCheck::Verdict::kRestart) {
+    ROS_WARN_THROTTLE(kThrottleS, "%s: time went back by %.3f s (a looping bag or a restarted "
+                      "driver): temporal state reset", name_.c_str(), order.back_s);
+    resetTemporalState();
+  } else if (order.verdict == StampCheck::Verdict::kOutOfOrder) {
+    std::ostringstream m;
+    m.precision(6);
+    m << std::fixed << "out-of-order pair: stamp " << stamp.toSec()
+      << " s is not after the last processed " << order.last_stamp_s << " s";
+    reject("pair", m.str());
+    return false;
+  }
+  return true;
+}
+
+bool Reconstruction::applyCalibration(const Pair& pair) {
+  if (!(pair.left_info && pair.right_info && usesCameraInfo())) return true;
+  const StereoCalibration calib = ros_conv::stereoFromCameraInfo(*pair.left_info, *pair.right_info);
+  if (has_calibration_ && calib == calibration_) return true;
+  const std::string error = pipeline_->setCalibration(calib);
+  if (!error.empty()) {
+    reject("camera_info", error);
+    return false;
+  }
+  if (has_calibration_) geometry_change_ = describeCalibrationChange(calibration_, calib);
+  calibration_ = calib;
+  has_calibration_ = true;
+  return true;
+}
+
+bool Reconstruction::stereoInput(const Pair& pair, StereoInput* in) {
+  // Views of the message data, no copies: the pair holds the messages until processing ends and
+  // the pipeline only reads its input.
+  std::string error;
+  if (!ros_conv::imageToMat(*pair.left, in->left, &error, false)) {
+    reject("left image", error);
+    return false;
+  }
+  if (!ros_conv::imageToMat(*pair.right, in->right, &error, false)) {
+    reject("right image", error);
+    return false;
+  }
+  in->left_encoding = pair.left->encoding;
+  in->right_encoding = pair.right->encoding;
+  in->stamp_s = pair.left->header.stamp.toSec();
+  return true;
+}
+
 std::string Reconstruction::describeCalibrationChange(const StereoCalibration& before,
                                                       const StereoCalibration& after) {
   std::ostringstream m;

@@ -109,6 +109,32 @@ void Reconstruction::advertiseOutputs() {
   }
 }
 
+void Reconstruction::selectOutputs() {
+  // Fused and coverage outputs are computed while configured or while someone listens; the
+  // cloud (8 MB at 960x540) only while configured and someone listens to points2, and the left
+  // colour image (conversion + 3-channel remap) only for the cloud, left/image_rect_color or
+  // rgb/image_rect_color.
+  OutputParams configured;
+  {
+    std::lock_guard<std::mutex> lock(params_mutex_);
+    configured = params_.output;
+  }
+  PipelineParams p = pipeline_->params();
+  const bool want_fused = configured.fused || pub_fused_.getNumSubscribers() > 0 ||
+                          pub_depth_fused_.getNumSubscribers() > 0;
+  const bool want_cov = configured.coverage || pub_coverage_.getNumSubscribers() > 0;
+  const bool want_cloud = configured.point_cloud && pub_points_.getNumSubscribers() > 0;
+  if (p.output.fused != want_fused || p.output.coverage != want_cov ||
+      p.output.point_cloud != want_cloud) {
+    p.output.fused = want_fused;
+    p.output.coverage = want_cov;
+    p.output.point_cloud = want_cloud;
+    pipeline_->setParams(p);
+  }
+  pipeline_->setColorOutput(pub_left_rect_.getNumSubscribers() > 0 ||
+                            pub_rgb_.getNumSubscribers() > 0);
+}
+
 void Reconstruction::publishOutputs(const Pair& pair, const PipelineOutput& out) {
   std_msgs::Header header;
   header.stamp = pair.left->header.stamp;

@@ -166,6 +166,27 @@ class Reconstruction {
   void workerLoop();
   /// @return true when the pair was processed and published, false when it was rejected.
   bool processPair(const Pair& pair);
+  /// A new temporal state: the pipeline's reset, the out-of-step check restarted, the frame count.
+  void resetTemporalState();
+  /// Hands parameters set since the last frame (setPipelineParams) to the pipeline.
+  void applyPendingParams();
+  /// Turns the pipeline's optional outputs on or off by configuration and subscribers.
+  void selectOutputs();
+  /// Outputs go in stamp order: @return false (rejected) for a pair not after the last processed
+  /// one; time that went back far enough is a new stream (temporal state reset).
+  bool checkStampOrder(const ros::Time& stamp);
+  /// Hands a pair's calibration (camera_info) to the pipeline when it is new; @return false
+  /// (rejected) when the pipeline refuses it.
+  bool applyCalibration(const Pair& pair);
+  /// The pipeline's input: views of the pair's images; @return false (rejected) when one cannot
+  /// be read.
+  bool stereoInput(const Pair& pair, StereoInput* in);
+  /// After a processed pair stamped @p stamp: its stamp to the scheduler, a reset noted.
+  void noteProcessed(const ros::Time& stamp);
+  /// The figures of a processed pair for the diagnostics (latency, density, quality, priors), and
+  /// the first pair's timings to the log.
+  void recordFigures(const Pair& pair, const ros::WallTime& t_process,
+                     const ros::WallTime& t_publish, const ros::WallTime& t_done);
   /// ~right_frame_offset: re-pairs the views (view_offset_); @return false when the pair is held
   /// (counted as withheld), true with @p pair holding the views to match.
   bool compensateOffset(Pair& pair);
