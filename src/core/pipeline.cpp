@@ -76,6 +76,15 @@ struct Pipeline::Impl {
   bool color_wanted = true;  // setColorOutput()
   // Scratch reused between frames.
   cv::Mat left_gray, right_gray, left_bgr;
+
+  // The steps of process(), in order.
+  bool preprocess(const StereoInput& input, const PipelineParams& params, PipelineOutput& out,
+                  std::string* error);
+  bool rectify(PipelineOutput& out, std::string* error);
+  const SearchRange* beginPriors(double stamp_s, const MatcherParams& mp, PipelineOutput& out);
+  void match(const SearchRange* range, PipelineOutput& out);
+  void endTemporal(const OutputParams& want, PipelineOutput& out);
+  void cloud(bool wanted, PipelineOutput& out);
 };
 
 Pipeline::Pipeline(const PipelineParams& params) : params_(params) {
@@ -131,111 +140,149 @@ void Pipeline::setAsyncRectificationQuality(bool async) { impl_->rectifier.setAs
 const TemporalTracker& Pipeline::temporal() const { return impl_->temporal; }
 const StereoRectifier& Pipeline::rectifier() const { return impl_->rectifier; }
 
-bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::string* error) {
-  const auto t_start = Clock::now();
+// --- the steps of a frame (docs/method.md: sections 1 to 4 in order) ---------------------------
+
+namespace {
+
+void resetFrameOutput(PipelineOutput& out, int64_t frame_index) {
   out.priors_used = false;
   out.priors_rejected = false;
   out.priors_reset = false;
   out.reset_reason.clear();
   out.prior_stats = TemporalPriorStats();
   out.preprocess_ms = out.rectify_ms = out.match_ms = out.temporal_ms = out.cloud_ms = 0.0;
-  out.frame_index = impl_->frames_done;
+  out.frame_index = frame_index;
+}
 
+// Both images present and of one size; "" or what is wrong.
+std::string inputProblem(const StereoInput& input) {
   if (input.left.empty() || input.right.empty()) {
-    setError(error, std::string("empty ") + (input.left.empty() ? "left" : "right") + " image");
-    return false;
+    return std::string("empty ") + (input.left.empty() ? "left" : "right") + " image";
   }
   if (input.left.size() != input.right.size()) {
-    setError(error, "image size mismatch: left " + sizeText(input.left.size()) + ", right " +
-                        sizeText(input.right.size()));
-    return false;
+    return "image size mismatch: left " + sizeText(input.left.size()) + ", right " +
+           sizeText(input.right.size());
   }
+  return {};
+}
+
+}  // namespace
+
+// Section 1: gray for matching, colour (left only) for the cloud, only where something uses it
+// (it costs a conversion and a 3-channel remap).
+bool Pipeline::Impl::preprocess(const StereoInput& input, const PipelineParams& params,
+                                PipelineOutput& out, std::string* error) {
+  const auto t = Clock::now();
   const std::string left_enc = encodingOrDefault(input.left_encoding, input.left);
   const std::string right_enc = encodingOrDefault(input.right_encoding, input.right);
+  const bool color = params.output.point_cloud || color_wanted;
+  if (!color) left_bgr.release();
+  std::string err;
+  if (!preprocessImage(input.left, left_enc, params.preprocess, left_gray,
+                       color ? &left_bgr : nullptr, &err)) {
+    setError(error, "left image: " + err);
+    return false;
+  }
+  if (!preprocessImage(input.right, right_enc, params.preprocess, right_gray, nullptr, &err)) {
+    setError(error, "right image: " + err);
+    return false;
+  }
+  out.preprocess_ms = msSince(t);
+  return true;
+}
 
+// Section 1: rectification in any mode (pass-through copies and supplies the geometry).
+bool Pipeline::Impl::rectify(PipelineOutput& out, std::string* error) {
+  const auto t = Clock::now();
+  std::string err;
+  if (!rectifier.rectify(left_gray, right_gray, left_bgr, out.left_rect_gray, out.right_rect_gray,
+                         out.left_rect_color, &err)) {
+    setError(error, "rectification: " + err);
+    return false;
+  }
+  out.geometry = rectifier.geometry();
+  out.rect_quality = rectifier.quality();
+  out.rectify_ms = msSince(t);
+  return true;
+}
+
+// Section 4: the temporal stage decides whether the priors still hold (time, gap, size, range,
+// calibration generation) and gives the frame's search ranges, or nullptr for a full search.
+const SearchRange* Pipeline::Impl::beginPriors(double stamp_s, const MatcherParams& mp,
+                                               PipelineOutput& out) {
+  const auto t = Clock::now();
+  TemporalFrameInfo info;
+  info.size = out.left_rect_gray.size();
+  info.stamp_s = stamp_s;
+  info.calibration_generation = rectifier.generation();
+  info.min_disparity = mp.min_disparity;
+  info.max_disparity = mp.max_disparity;
+  std::string reason;
+  const SearchRange* range = temporal.beginFrame(info, &reason);
+  out.priors_reset = !reason.empty();
+  out.reset_reason = reason;
+  out.temporal_ms = msSince(t);
+  return range;
+}
+
+// Sections 2 and 3: matching and post-filtering: the narrowed pass (the full range where no prior
+// is usable), the same-frame fallback for narrowed misses, and a scene change's second go
+// (temporal_matching.hpp).
+void Pipeline::Impl::match(const SearchRange* range, PipelineOutput& out) {
+  const auto t = Clock::now();
+  TemporalMatchReport report;
+  matcher.compute(out.left_rect_gray, out.right_rect_gray, temporal, range, out.match, &report);
+  out.priors_used = report.priors_used;
+  out.priors_rejected = report.priors_rejected;
+  out.match_ms = msSince(t);
+}
+
+// Section 4: the priors of the next frame, fusion and coverage; copies into the caller's buffers
+// (the tracker overwrites its own on the next frame).
+void Pipeline::Impl::endTemporal(const OutputParams& want, PipelineOutput& out) {
+  const auto t = Clock::now();
+  temporal.endFrame(out.match.disparity, want.fused, want.coverage);
+  out.prior_stats = temporal.prior().stats();
+  if (want.fused) {
+    temporal.fusion().disparity().copyTo(out.fused_disparity);
+    temporal.fusion().age().copyTo(out.fused_age);
+  } else {
+    out.fused_disparity.release();
+    out.fused_age.release();
+  }
+  if (want.coverage) {
+    temporal.coverage().longestRun().copyTo(out.coverage);
+  } else {
+    out.coverage.release();
+  }
+  out.temporal_ms += msSince(t);
+}
+
+void Pipeline::Impl::cloud(bool wanted, PipelineOutput& out) {
+  if (!wanted) {
+    out.cloud = OrganizedCloud();
+    return;
+  }
+  const auto t = Clock::now();
+  disparityToCloud(out.match.disparity, out.left_rect_color, out.geometry, out.cloud);
+  out.cloud_ms = msSince(t);
+}
+
+bool Pipeline::process(const StereoInput& input, PipelineOutput& out, std::string* error) {
+  const auto t_start = Clock::now();
+  resetFrameOutput(out, impl_->frames_done);
+  const std::string problem = inputProblem(input);
+  if (!problem.empty()) {
+    setError(error, problem);
+    return false;
+  }
   try {
-    // --- pre-processing: gray for matching, colour (left only) for the cloud.
-    auto t = Clock::now();
-    std::string err;
-    // Colour only where something uses it: it costs a conversion and a 3-channel remap.
-    const bool color = params_.output.point_cloud || impl_->color_wanted;
-    if (!color) impl_->left_bgr.release();
-    if (!preprocessImage(input.left, left_enc, params_.preprocess, impl_->left_gray,
-                         color ? &impl_->left_bgr : nullptr, &err)) {
-      setError(error, "left image: " + err);
-      return false;
-    }
-    if (!preprocessImage(input.right, right_enc, params_.preprocess, impl_->right_gray, nullptr,
-                         &err)) {
-      setError(error, "right image: " + err);
-      return false;
-    }
-    out.preprocess_ms = msSince(t);
-
-    // --- rectification (any mode; pass-through copies and supplies the geometry).
-    t = Clock::now();
-    if (!impl_->rectifier.rectify(impl_->left_gray, impl_->right_gray, impl_->left_bgr,
-                                  out.left_rect_gray, out.right_rect_gray, out.left_rect_color,
-                                  &err)) {
-      setError(error, "rectification: " + err);
-      return false;
-    }
-    out.geometry = impl_->rectifier.geometry();
-    out.rect_quality = impl_->rectifier.quality();
-    out.rectify_ms = msSince(t);
-
-    // --- priors: the temporal stage decides (time, gap, size, range, calibration generation).
-    t = Clock::now();
-    TemporalFrameInfo info;
-    info.size = out.left_rect_gray.size();
-    info.stamp_s = input.stamp_s;
-    info.calibration_generation = impl_->rectifier.generation();
-    info.min_disparity = params_.matcher.min_disparity;
-    info.max_disparity = params_.matcher.max_disparity;
-    std::string reason;
-    const SearchRange* range = impl_->temporal.beginFrame(info, &reason);
-    out.priors_reset = !reason.empty();
-    out.reset_reason = reason;
-    out.temporal_ms = msSince(t);
-
-    // --- matching and post-filtering: the narrowed pass (the full range where no prior is
-    // usable), the same-frame fallback for narrowed misses, and a scene change's second go
-    // (temporal_matching.hpp).
-    t = Clock::now();
-    TemporalMatchReport report;
-    impl_->matcher.compute(out.left_rect_gray, out.right_rect_gray, impl_->temporal, range,
-                           out.match, &report);
-    out.priors_used = report.priors_used;
-    out.priors_rejected = report.priors_rejected;
-    out.match_ms = msSince(t);
-
-    // --- priors for the next frame, fusion, coverage.
-    t = Clock::now();
-    impl_->temporal.endFrame(out.match.disparity, params_.output.fused, params_.output.coverage);
-    out.prior_stats = impl_->temporal.prior().stats();
-    if (params_.output.fused) {
-      // Copies into the caller's buffers: the tracker overwrites its own on the next frame.
-      impl_->temporal.fusion().disparity().copyTo(out.fused_disparity);
-      impl_->temporal.fusion().age().copyTo(out.fused_age);
-    } else {
-      out.fused_disparity.release();
-      out.fused_age.release();
-    }
-    if (params_.output.coverage) {
-      impl_->temporal.coverage().longestRun().copyTo(out.coverage);
-    } else {
-      out.coverage.release();
-    }
-    out.temporal_ms += msSince(t);
-
-    // --- point cloud.
-    if (params_.output.point_cloud) {
-      t = Clock::now();
-      disparityToCloud(out.match.disparity, out.left_rect_color, out.geometry, out.cloud);
-      out.cloud_ms = msSince(t);
-    } else {
-      out.cloud = OrganizedCloud();
-    }
+    if (!impl_->preprocess(input, params_, out, error)) return false;
+    if (!impl_->rectify(out, error)) return false;
+    const SearchRange* range = impl_->beginPriors(input.stamp_s, params_.matcher, out);
+    impl_->match(range, out);
+    impl_->endTemporal(params_.output, out);
+    impl_->cloud(params_.output.point_cloud, out);
   } catch (const std::exception& ex) {
     // The components throw only on contract violations (type/size); report, stay usable.
     setError(error, std::string("processing failed: ") + ex.what());
