@@ -1,26 +1,33 @@
-// Temporal priors, fusion and coverage (docs/method.md section 4). See temporal.hpp.
-#include "endo_stereo/core/temporal.hpp"
-
+// Temporal search-range priors (docs/method.md section 4): per pixel the disparity range the
+// matcher searches, from the previous frames' valid disparities. See temporal.hpp.
 #include <algorithm>
 #include <array>
 #include <cmath>
+#include <cstdint>
 #include <cstring>
-#include <opencv2/core/hal/intrin.hpp>
-#include <opencv2/core/utility.hpp>
+#include <limits>
 #include <opencv2/imgproc.hpp>
-#include <sstream>
 #include <stdexcept>
+#include <string>
 #include <vector>
+
+#include "endo_stereo/core/temporal.hpp"
+#include "temporal_internal.hpp"
 
 namespace endo_stereo {
 
-namespace {
+using detail::checkDisparity;
+using detail::finite;
+using detail::forRowStripes;
+using detail::kStripeRows;
+using detail::saturatingIncrement;
+#if CV_SIMD128
+using detail::countMask;
+using detail::finiteMask8;
+using detail::widenMask;
+#endif
 
-std::string rangeMessage(const char* field, const std::string& range, double value) {
-  std::ostringstream os;
-  os << "temporal." << field << " must be in " << range << " (got " << value << ")";
-  return os.str();
-}
+namespace {
 
 // Sentinel of "no prior" in the min/max filtered images: far outside any disparity, but finite so
 // that arithmetic on it stays well defined.
@@ -30,65 +37,9 @@ constexpr float kNoPriorHi = -1e9f;
 // Block size of the coarse min / max grid behind the edge zone, px.
 constexpr int kEdgeBlock = 4;
 
-inline uint16_t saturatingIncrement(uint16_t v) { return uint16_t(v + (v != kAgeNone)); }
-
-// isfinite as one ordered compare: false for NaN (unordered) and +-inf. Written this way so the
-// row loops below vectorise (std::isfinite is a library call at -O2/-O3 without fast-math).
-inline bool finite(float v) { return std::fabs(v) <= std::numeric_limits<float>::max(); }
-
 // floor / ceil of a float to int without a libm call or a branch: truncate, then step once
 // towards -inf / +inf when the truncation went the other way. Exact for |x| < 2^31 (floats of
 // magnitude >= 2^23 are integers already); the priors and sentinels stay far inside that.
-#if CV_SIMD128
-// Validity (finite) of in[0..7] as one 16-bit mask per pixel (all ones = finite), and per half as
-// 32-bit masks for float selects.
-inline cv::v_uint16x8 finiteMask8(const float* in, cv::v_float32x4* in0, cv::v_float32x4* in1,
-                                  cv::v_float32x4* m0, cv::v_float32x4* m1) {
-  const cv::v_float32x4 big = cv::v_setall_f32(std::numeric_limits<float>::max());
-  *in0 = cv::v_load(in);
-  *in1 = cv::v_load(in + 4);
-  *m0 = cv::v_abs(*in0) <= big;
-  *m1 = cv::v_abs(*in1) <= big;
-  return cv::v_reinterpret_as_u16(
-      cv::v_pack(cv::v_reinterpret_as_s32(*m0), cv::v_reinterpret_as_s32(*m1)));
-}
-
-// A 16-bit lane mask widened to two 32-bit float masks (sign extension keeps all ones).
-inline void widenMask(const cv::v_uint16x8& m, cv::v_float32x4* m0, cv::v_float32x4* m1) {
-  cv::v_int32x4 a, b;
-  cv::v_expand(cv::v_reinterpret_as_s16(m), a, b);
-  *m0 = cv::v_reinterpret_as_f32(a);
-  *m1 = cv::v_reinterpret_as_f32(b);
-}
-
-inline int countMask(const cv::v_uint16x8& m) {
-  cv::v_uint32x4 a, b;
-  cv::v_expand(m & cv::v_setall_u16(1), a, b);
-  return int(cv::v_reduce_sum(a + b));
-}
-#endif
-
-// Rows are processed in fixed stripes (a multiple of kEdgeBlock rows) that cv::parallel_for_ may
-// run on any number of threads. Per-stripe counters are summed in stripe order afterwards, and
-// every pixel's output depends only on its inputs, so results do not depend on the thread count.
-constexpr int kStripeRows = 32;
-
-template <size_t N, typename Body>
-std::array<int64_t, N> forRowStripes(int rows, const Body& body) {
-  const int stripes = (rows + kStripeRows - 1) / kStripeRows;
-  std::vector<std::array<int64_t, N>> counts(size_t(stripes), std::array<int64_t, N>{});
-  cv::parallel_for_(cv::Range(0, stripes), [&](const cv::Range& range) {
-    for (int s = range.start; s < range.end; ++s) {
-      body(s * kStripeRows, std::min(rows, (s + 1) * kStripeRows), counts[size_t(s)]);
-    }
-  });
-  std::array<int64_t, N> total{};
-  for (const auto& c : counts) {
-    for (size_t i = 0; i < N; ++i) total[i] += c[i];
-  }
-  return total;
-}
-
 inline int floorToInt(float x) {
   const int t = int(x);
   return t - int(float(t) > x);
@@ -98,66 +49,8 @@ inline int ceilToInt(float x) {
   return t + int(float(t) < x);
 }
 
-void checkDisparity(const cv::Mat& disparity, const char* who) {
-  if (disparity.empty() || disparity.type() != CV_32FC1) {
-    throw std::invalid_argument(std::string(who) + ": disparity must be a non-empty CV_32FC1");
-  }
-}
-
 }  // namespace
 
-std::string TemporalParams::validate() const {
-  if (prior_radius_px < 1 || prior_radius_px > 64)
-    return rangeMessage("prior_radius_px", "[1, 64]", prior_radius_px);
-  if (prior_neighbourhood_px < 0 || prior_neighbourhood_px > 16)
-    return rangeMessage("prior_neighbourhood_px", "[0, 16]", prior_neighbourhood_px);
-  if (prior_edge_zone_px < 0 || prior_edge_zone_px > 64)
-    return rangeMessage("prior_edge_zone_px", "[0, 64]", prior_edge_zone_px);
-  if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
-    return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
-  if (max_prior_failures < 1 || max_prior_failures > 1000)
-    return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
-  if (full_range_period_frames < 1 || full_range_period_frames > 1000)
-    return rangeMessage("full_range_period_frames", "[1, 1000]", full_range_period_frames);
-  if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))
-    return rangeMessage("min_prior_hit_share", "[0, 1]", min_prior_hit_share);
-  if (!(max_gap_s > 0.0) || !std::isfinite(max_gap_s))
-    return rangeMessage("max_gap_s", "(0, inf)", max_gap_s);
-  if (fused_max_age_frames < 0 || fused_max_age_frames > 65534)
-    return rangeMessage("fused_max_age_frames", "[0, 65534]", fused_max_age_frames);
-  if (coverage_within_frames < 1 || coverage_within_frames > 65534)
-    return rangeMessage("coverage_within_frames", "[1, 65534]", coverage_within_frames);
-  return {};
-}
-
-// ------------------------------------------------------------------------------------------------
-std::string TemporalResetDetector::check(const TemporalFrameInfo& info) {
-  std::ostringstream reason;
-  if (has_previous_) {
-    const TemporalFrameInfo& p = previous_;
-    if (info.size != p.size) {
-      reason << "image size changed from " << p.size.width << "x" << p.size.height << " to "
-             << info.size.width << "x" << info.size.height;
-    } else if (info.min_disparity != p.min_disparity || info.max_disparity != p.max_disparity) {
-      reason << "disparity range changed from [" << p.min_disparity << ", " << p.max_disparity
-             << "] to [" << info.min_disparity << ", " << info.max_disparity << "]";
-    } else if (info.calibration_generation != p.calibration_generation) {
-      reason << "calibration changed";
-    } else if (std::isfinite(info.stamp_s) && std::isfinite(p.stamp_s)) {
-      const double dt = info.stamp_s - p.stamp_s;
-      if (dt < 0.0) {
-        reason << "time went back by " << -dt << " s";
-      } else if (dt > max_gap_s_) {
-        reason << "gap of " << dt << " s > max_gap_s " << max_gap_s_;
-      }
-    }
-  }
-  previous_ = info;
-  has_previous_ = true;
-  return reason.str();
-}
-
-// ------------------------------------------------------------------------------------------------
 TemporalPrior::TemporalPrior(const TemporalParams& params) { setParams(params); }
 
 void TemporalPrior::setParams(const TemporalParams& params) {
@@ -580,279 +473,6 @@ void TemporalPrior::dropAll() {
   }
   if (!narrowed_.empty()) narrowed_.setTo(0);
   stats_.scene_change = true;
-}
-
-// ------------------------------------------------------------------------------------------------
-TemporalFusion::TemporalFusion(int max_age_frames) { setMaxAge(max_age_frames); }
-
-void TemporalFusion::setMaxAge(int max_age_frames) {
-  if (max_age_frames < 0 || max_age_frames > 65534) {
-    throw std::invalid_argument(rangeMessage("fused_max_age_frames", "[0, 65534]", max_age_frames));
-  }
-  max_age_frames_ = max_age_frames;
-}
-
-void TemporalFusion::reset() {
-  disparity_.release();
-  age_.release();
-}
-
-void TemporalFusion::update(const cv::Mat& disparity) {
-  checkDisparity(disparity, "TemporalFusion::update");
-  if (disparity_.size() != disparity.size()) {
-    disparity_.create(disparity.size(), CV_32FC1);
-    disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
-    age_.create(disparity.size(), CV_16UC1);
-    age_.setTo(kAgeNone);
-  }
-  const int max_age = max_age_frames_;
-  const float nan = std::numeric_limits<float>::quiet_NaN();
-  forRowStripes<1>(disparity.rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
-    for (int y = y_begin; y < y_end; ++y) {
-      const float* in = disparity.ptr<float>(y);
-      float* d = disparity_.ptr<float>(y);
-      uint16_t* age = age_.ptr<uint16_t>(y);
-      int x = 0;
-#if CV_SIMD128
-      {
-        const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
-        const cv::v_uint16x8 v_none = cv::v_setall_u16(kAgeNone);
-        const cv::v_uint16x8 v_max_age = cv::v_setall_u16(uint16_t(max_age));
-        const cv::v_float32x4 v_nan = cv::v_setall_f32(nan);
-        for (; x <= disparity.cols - 8; x += 8) {
-          cv::v_float32x4 in0, in1, ok0, ok1, ex0, ex1;
-          const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
-          const cv::v_uint16x8 a = cv::v_load(age + x);
-          const cv::v_uint16x8 held = a != v_none;
-          const cv::v_uint16x8 expired = held & (a >= v_max_age);  // a + 1 > max_age
-          const cv::v_uint16x8 older = cv::v_select(expired, v_none, a + (held & v_one));
-          cv::v_store(age + x, cv::v_select(ok, v_zero, older));
-          widenMask(expired, &ex0, &ex1);
-          const cv::v_float32x4 kept0 = cv::v_select(ex0, v_nan, cv::v_load(d + x));
-          const cv::v_float32x4 kept1 = cv::v_select(ex1, v_nan, cv::v_load(d + x + 4));
-          cv::v_store(d + x, cv::v_select(ok0, in0, kept0));
-          cv::v_store(d + x + 4, cv::v_select(ok1, in1, kept1));
-        }
-      }
-#endif
-      for (; x < disparity.cols; ++x) {
-        const bool valid = finite(in[x]);
-        const int a = age[x];
-        // A held value one frame older; past the maximum age it is forgotten. A pixel with no
-        // value (kAgeNone) stays as it is.
-        const bool held = a != kAgeNone;
-        const bool expired = held & (a + 1 > max_age);
-        const uint16_t older = expired ? kAgeNone : uint16_t(a + held);
-        const float kept = expired ? nan : d[x];
-        d[x] = valid ? in[x] : kept;
-        age[x] = valid ? uint16_t(0) : older;
-      }
-    }
-  });
-}
-
-// ------------------------------------------------------------------------------------------------
-CoverageTracker::CoverageTracker(int within_frames) { setWithinFrames(within_frames); }
-
-void CoverageTracker::setWithinFrames(int within_frames) {
-  if (within_frames < 1 || within_frames > 65534) {
-    throw std::invalid_argument(
-        rangeMessage("coverage_within_frames", "[1, 65534]", within_frames));
-  }
-  within_frames_ = within_frames;
-}
-
-void CoverageTracker::reset() {
-  frames_ = 0;
-  current_.release();
-  longest_.release();
-  ever_.release();
-}
-
-void CoverageTracker::update(const cv::Mat& disparity) {
-  checkDisparity(disparity, "CoverageTracker::update");
-  if (current_.size() != disparity.size()) {
-    reset();
-    current_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
-    longest_ = cv::Mat::zeros(disparity.size(), CV_16UC1);
-    ever_ = cv::Mat::zeros(disparity.size(), CV_8UC1);
-  }
-  forRowStripes<1>(disparity.rows, [&](int y_begin, int y_end, std::array<int64_t, 1>&) {
-    for (int y = y_begin; y < y_end; ++y) {
-      const float* in = disparity.ptr<float>(y);
-      uint16_t* cur = current_.ptr<uint16_t>(y);
-      uint16_t* lng = longest_.ptr<uint16_t>(y);
-      uint8_t* ever = ever_.ptr<uint8_t>(y);
-      int x = 0;
-#if CV_SIMD128
-      {
-        const cv::v_uint16x8 v_zero = cv::v_setzero_u16(), v_one = cv::v_setall_u16(1);
-        for (; x <= disparity.cols - 8; x += 8) {
-          cv::v_float32x4 in0, in1, ok0, ok1;
-          const cv::v_uint16x8 ok = finiteMask8(in + x, &in0, &in1, &ok0, &ok1);
-          const cv::v_uint16x8 run = cv::v_load(cur + x) + v_one;  // saturating at kAgeNone
-          cv::v_store(cur + x, cv::v_select(ok, v_zero, run));
-          const cv::v_uint16x8 lng_old = cv::v_load(lng + x);
-          cv::v_store(lng + x, cv::v_select(ok, lng_old, cv::v_max(lng_old, run)));
-          const cv::v_uint16x8 ev = cv::v_select(ok, v_one, cv::v_load_expand(ever + x));
-          cv::v_store_low(ever + x, cv::v_pack(ev, ev));
-        }
-      }
-#endif
-      for (; x < disparity.cols; ++x) {
-        const bool valid = finite(in[x]);
-        const uint16_t run = saturatingIncrement(cur[x]);
-        cur[x] = valid ? uint16_t(0) : run;
-        lng[x] = valid ? lng[x] : std::max(lng[x], run);
-        ever[x] = valid ? uint8_t(1) : ever[x];
-      }
-    }
-  });
-  ++frames_;
-}
-
-cv::Rect CoverageTracker::centralRegion(cv::Size size) {
-  const double s = 1.0 / std::sqrt(2.0);
-  const int w = int(std::lround(size.width * s));
-  const int h = int(std::lround(size.height * s));
-  return cv::Rect((size.width - w) / 2, (size.height - h) / 2, w, h);
-}
-
-CoverageStats CoverageTracker::stats() const {
-  CoverageStats s;
-  s.frames = frames_;
-  s.within_frames = within_frames_;
-  if (longest_.empty()) return s;
-  s.central_region = centralRegion(longest_.size());
-  auto share = [&](const cv::Rect& roi, double* within, double* never) {
-    int64_t n_within = 0, n_never = 0;
-    for (int y = roi.y; y < roi.y + roi.height; ++y) {
-      const uint16_t* lng = longest_.ptr<uint16_t>(y);
-      const uint8_t* ever = ever_.ptr<uint8_t>(y);
-      for (int x = roi.x; x < roi.x + roi.width; ++x) {
-        // A pixel never updated was not updated within N frames, however short the sequence.
-        n_within += ever[x] != 0 && lng[x] < within_frames_;
-        n_never += ever[x] == 0;
-      }
-    }
-    const double n = double(roi.area());
-    *within = n > 0 ? double(n_within) / n : 0.0;
-    *never = n > 0 ? double(n_never) / n : 0.0;
-  };
-  share(s.central_region, &s.central_share, &s.central_never);
-  share(cv::Rect(cv::Point(0, 0), longest_.size()), &s.overall_share, &s.overall_never);
-  return s;
-}
-
-cv::Mat CoverageTracker::colorImage() const {
-  if (longest_.empty()) return cv::Mat();
-  // Longest run mapped linearly onto 0..2N; at N the colour map is half way (green/yellow).
-  const double top = 2.0 * within_frames_;
-  cv::Mat scaled;
-  longest_.convertTo(scaled, CV_8UC1, 255.0 / top);  // saturates above 2N
-  cv::Mat color;
-  cv::applyColorMap(scaled, color, cv::COLORMAP_TURBO);
-  color.setTo(cv::Scalar::all(0), ever_ == 0);
-  cv::rectangle(color, centralRegion(longest_.size()), cv::Scalar::all(255), 1);
-  return color;
-}
-
-// ------------------------------------------------------------------------------------------------
-TemporalTracker::TemporalTracker(const TemporalParams& params)
-    : params_(params),
-      detector_(params.max_gap_s),
-      prior_(params),
-      fusion_(params.fused_max_age_frames),
-      coverage_(params.coverage_within_frames) {}
-
-void TemporalTracker::setParams(const TemporalParams& params) {
-  const std::string error = params.validate();
-  if (!error.empty()) throw std::invalid_argument(error);
-  params_ = params;
-  detector_.setMaxGap(params.max_gap_s);
-  prior_.setParams(params);
-  fusion_.setMaxAge(params.fused_max_age_frames);
-  coverage_.setWithinFrames(params.coverage_within_frames);
-  if (!params.enabled) prior_.reset();
-}
-
-void TemporalTracker::reset() {
-  pending_reason_.clear();
-  detector_.reset();
-  prior_.reset();
-  fusion_.reset();
-  coverage_.reset();
-  range_.lo.release();
-  range_.hi.release();
-  priors_used_ = false;
-  frame_open_ = false;
-}
-
-const SearchRange* TemporalTracker::beginFrame(const TemporalFrameInfo& info,
-                                               std::string* reset_reason) {
-  std::string reason = detector_.check(info);
-  if (!reason.empty()) {
-    prior_.reset();
-    fusion_.reset();
-    coverage_.reset();
-  } else {
-    reason = pending_reason_;
-  }
-  pending_reason_.clear();
-  if (reset_reason) *reset_reason = reason;
-  frame_open_ = true;
-  priors_used_ = false;
-  if (!params_.enabled) {
-    range_.lo.release();
-    range_.hi.release();
-    return nullptr;
-  }
-  priors_used_ =
-      prior_.buildRange(info.size, info.min_disparity, info.max_disparity, range_);
-  return priors_used_ ? &range_ : nullptr;
-}
-
-bool TemporalTracker::rejectPriors(const cv::Mat& disparity) {
-  checkDisparity(disparity, "TemporalTracker::rejectPriors");
-  if (!params_.enabled || !priors_used_ || !frame_open_) return false;
-  if (!(params_.min_prior_hit_share > 0.0)) return false;
-  // The same test as TemporalPrior::sceneChanged(), from one pass over the image.
-  const double reference = prior_.referenceHitShare();
-  int64_t judged = 0;
-  const double share = prior_.hitShare(disparity, &judged);
-  if (!prior_.isSceneChange(std::llround(share * double(judged)), judged,
-                            int64_t(disparity.total()))) {
-    return false;
-  }
-  std::ostringstream os;
-  os << "scene change: " << std::lround(100.0 * share) << "% of " << judged
-     << " narrowed searches found a disparity (< " << params_.min_prior_hit_share << " x "
-     << std::lround(100.0 * reference)
-     << "% in the previous frame); priors and fused disparities dropped, frame matched again";
-  pending_reason_ = os.str();
-  prior_.dropAll();
-  fusion_.reset();
-  priors_used_ = false;
-  return true;
-}
-
-void TemporalTracker::endFrame(const cv::Mat& disparity, bool fuse, bool track_coverage) {
-  checkDisparity(disparity, "TemporalTracker::endFrame");
-  if (params_.enabled && frame_open_) {
-    prior_.update(disparity);
-    const TemporalPriorStats& s = prior_.stats();
-    if (s.scene_change && pending_reason_.empty()) {
-      std::ostringstream os;
-      os << "scene change: " << s.prior_hits << " of " << (s.prior_hits + s.prior_misses)
-         << " narrowed searches found a disparity (< " << params_.min_prior_hit_share
-         << " x the previous frame's share); priors and fused disparities dropped";
-      pending_reason_ = os.str();
-      fusion_.reset();
-    }
-  }
-  if (fuse) fusion_.update(disparity);
-  if (track_coverage) coverage_.update(disparity);
-  frame_open_ = false;
 }
 
 }  // namespace endo_stereo
