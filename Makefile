@@ -13,7 +13,7 @@ help:
 	@echo "make test-runner-selftest - the test runner on planted defects (last line: runner self-test: N planted, N caught)"
 	@echo "make bench  - build and run the benchmarks (ours vs OpenCV BM/SGBM, quasi-dense, stereo_image_proc)"
 	@echo "make build  - build only;  make deps - install missing Debian packages only"
-	@echo "make params-table - write the parameter table (src/core/param_table.cpp) into README.md"
+	@echo "make params-table - write the parameter table (src/core/pipeline/param_table.cpp) into README.md"
 	@echo "make asan   - ASan+UBSan build in .ws_asan, whole test suite;  make tsan - TSan nodelet run in .ws_tsan"
 	@echo "make fuzz   - libFuzzer harnesses, about a minute each;  make soak - 100000-pair soak (about an hour)"
 

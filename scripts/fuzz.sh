@@ -57,12 +57,12 @@ build() {
     echo "  -I$ES_ROOT/include -I$ES_ROOT/src/core $(pkg-config --cflags opencv4 eigen3 yaml-cpp) -MMD -MP"
     echo "LIBS := $(pkg-config --libs opencv4 yaml-cpp) -lpthread"
     echo "CORE_OBJS := \\"
-    for src in "$ES_ROOT"/src/core/*.cpp; do
+    for src in $(find "$ES_ROOT/src/core" -name "*.cpp" | sort); do
       echo "  obj/core_$(basename "${src%.cpp}").o \\"
     done
     echo ""
     echo "all: $(printf 'fuzz_%s ' "${HARNESSES[@]}")"
-    for src in "$ES_ROOT"/src/core/*.cpp; do
+    for src in $(find "$ES_ROOT/src/core" -name "*.cpp" | sort); do
       echo "obj/core_$(basename "${src%.cpp}").o: $src"
       printf '\t$(CXX) $(CXXFLAGS) -fsanitize=fuzzer-no-link -c $< -o $@\n'
     done

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# `make params-table`: writes the parameter table (src/core/param_table.cpp, printed by
+# `make params-table`: writes the parameter table (src/core/pipeline/param_table.cpp, printed by
 # `endo_stereo_cli --list-params --markdown`) into README.md between its params-table markers.
 # test_params_io (ParamTable.TheReadmeShowsTheGeneratedTable) fails while the two differ.
 set -euo pipefail

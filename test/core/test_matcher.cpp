@@ -15,7 +15,7 @@
 #include "endo_stereo/core/reference_matcher.hpp"
 #include "synthetic_scene.hpp"
 // The depth-edge filter on its own, on hand-made maps with exact answers (a core-private header).
-#include "../../src/core/depth_edge_filter.hpp"
+#include "../../src/core/match/depth_edge_filter.hpp"
 
 namespace endo_stereo {
 namespace {

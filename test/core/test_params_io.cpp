@@ -252,7 +252,7 @@ TEST(ParamsIo, EveryParamsStructFieldHasAKey) {
          it != std::sregex_iterator(); ++it) {
       const std::string key = std::string(src.section) + "." + (*it)[1].str();
       EXPECT_EQ(keys.count(key), 1u)
-          << key << " (" << src.strukt << ") has no entry in src/core/param_table.cpp";
+          << key << " (" << src.strukt << ") has no entry in src/core/pipeline/param_table.cpp";
       ++found;
     }
     EXPECT_GT(found, 0) << src.strukt;
@@ -342,7 +342,7 @@ TEST(ParamTable, PresetValuesLieWithinTheTablesRanges) {
 }
 
 // README.md shows the table between its markers as paramTableMarkdown() writes it; regenerate
-// with `make params-table` after changing src/core/param_table.cpp.
+// with `make params-table` after changing src/core/pipeline/param_table.cpp.
 TEST(ParamTable, TheReadmeShowsTheGeneratedTable) {
   std::ifstream in(std::string(ES_SOURCE_DIR) + "/README.md");
   ASSERT_TRUE(in.good());

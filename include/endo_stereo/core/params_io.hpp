@@ -57,7 +57,7 @@ struct ParamBounds {
   bool exact = false;
 };
 
-/// One pipeline parameter, as the one table of parameters describes it (src/core/param_table.cpp).
+/// One pipeline parameter, as the one table of parameters describes it (src/core/pipeline/param_table.cpp).
 struct ParamInfo {
   std::string key;      ///< "section.field", e.g. "matcher.delta_min"
   std::string section;  ///< "matcher", "filter", "preprocess", "rectify", "temporal", "output"

@@ -9,7 +9,7 @@
 
 #include <opencv2/imgproc.hpp>
 
-#include "depth_edge_filter.hpp"
+#include "match/depth_edge_filter.hpp"
 
 namespace endo_stereo {
 namespace {
