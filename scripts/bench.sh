@@ -8,6 +8,8 @@
 #        same pair 10 times (full search; ours without priors is the full-search time) and a
 #        moving sequence of 75 frames in which the crop window moves on a circle of radius 24 px
 #        (one turn, about 2 px per frame);
+#      - the in-vivo video and the moving sequence again with --threads 1 (ours only): time per
+#        stage at 1 thread beside the runs above (OpenCV's default thread count, one per CPU);
 #      - pairs with ground truth (endo_stereo_eval --peers): real/scared_ds1_kf2_gt (search 0..95)
 #        and the Middlebury scenes;
 #   2. generated: a 60-frame surgical sequence from endo_stereo_generate (endo_stereo_evaluate);
@@ -63,6 +65,10 @@ if [ -d "$REAL_REL" ]; then
   record invivo "$REL_BIN/endo_stereo_evaluate" \
     --left "$REAL_REL/hamlyn_invivo1/left/%04d.png" --right "$REAL_REL/hamlyn_invivo1/right/%04d.png" \
     --min-disparity 0 --max-disparity 127 --label "real/hamlyn_invivo1" --quiet --out "$OUT/invivo"
+  record invivo_t1 "$REL_BIN/endo_stereo_evaluate" \
+    --left "$REAL_REL/hamlyn_invivo1/left/%04d.png" --right "$REAL_REL/hamlyn_invivo1/right/%04d.png" \
+    --min-disparity 0 --max-disparity 127 --label "real/hamlyn_invivo1, 1 thread" \
+    --methods ours,ours-no-priors --threads 1 --quiet --json "$OUT/invivo_t1.json"
   record scared_rectify "$REL_BIN/endo_stereo_cli" \
     --left "$REAL_REL/scared_ds1_pair/Left_Image.png" --right "$REAL_REL/scared_ds1_pair/Right_Image.png" \
     --calib "$REAL_REL/scared_ds1_pair/calib_scared_official_ds1-3.yaml" \
@@ -75,6 +81,11 @@ if [ -d "$REAL_REL" ]; then
     --left "$OUT/scared_rect_left.png" --right "$OUT/scared_rect_right.png" --crop 960x540 \
     --pan 75 --min-disparity 48 --max-disparity 111 --label "SCARED ds1 960x540, moving crop" \
     --quiet --out "$OUT/real960_moving"
+  record real960_moving_t1 "$REL_BIN/endo_stereo_evaluate" \
+    --left "$OUT/scared_rect_left.png" --right "$OUT/scared_rect_right.png" --crop 960x540 \
+    --pan 75 --min-disparity 48 --max-disparity 111 \
+    --label "SCARED ds1 960x540, moving crop, 1 thread" --methods ours,ours-no-priors \
+    --threads 1 --quiet --json "$OUT/real960_moving_t1.json"
   record groundtruth "$REL_BIN/endo_stereo_eval" --peers \
     --gt-pair "$REAL_REL/scared_ds1_kf2_gt" --gt-range 0:95 --json "$OUT/groundtruth.json"
 else

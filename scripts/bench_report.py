@@ -38,9 +38,10 @@ def num(v, fmt="%.1f"):
 
 
 def machine_line(m):
-    return "%s, %d logical CPUs, OpenCV %s (%d threads); load average %s at the start, %s at the end" % (
+    threads = m.get("opencv_threads", 0)
+    return "%s, %d logical CPUs, OpenCV %s (%d thread%s); load average %s at the start, %s at the end" % (
         m.get("cpu", "?"), m.get("logical_cpus", 0), m.get("opencv", "?"),
-        m.get("opencv_threads", 0), m.get("load_average_start", "?").split()[0],
+        threads, "" if threads == 1 else "s", m.get("load_average_start", "?").split()[0],
         m.get("load_average_end", "?").split()[0])
 
 
@@ -100,20 +101,83 @@ def evaluation_table(page, ev):
 
 
 def ros_table(page, runs):
+    """One row per stream and node; each cell lists every run (run 1 / run 2 / ...)."""
     page.add("| stream | node | pairs in | outputs | dropped (nodelet's own count) | output rate Hz | latency median ms | latency p90 ms | density |",
              "|---|---|---:|---:|---|---:|---:|---:|---:|")
+    groups = {}  # (case, node) -> its runs, in the order bench_ros.sh ran them
     for r in runs:
+        groups.setdefault((r["case"], r["node"]), []).append(r)
+    for rs in groups.values():
+        rs.sort(key=lambda r: r.get("run", 1))
+        r = rs[0]
+
+        def col(key, fmt="%s"):
+            return " / ".join(num(x.get(key), fmt) for x in rs)
         node = "endo_stereo (default preset)" if r["node"] == "endo_stereo" else "stereo_image_proc (SGBM)"
-        dropped = "n/a" if r.get("dropped_or_lost") is None else str(r["dropped_or_lost"])
-        if r.get("nodelet_pairs_dropped") is not None:
-            dropped += " (%s dropped, %s rejected)" % (r["nodelet_pairs_dropped"],
-                                                      r.get("nodelet_pairs_rejected"))
+        dropped = col("dropped_or_lost")
+        if any(x.get("nodelet_pairs_dropped") is not None for x in rs):
+            dropped += " (%s dropped, %s rejected)" % (col("nodelet_pairs_dropped"),
+                                                      col("nodelet_pairs_rejected"))
         page.add("| %s, %d frames, %d..%d | %s | %s | %s | %s | %s | %s | %s | %s |" % (
             r["description"], r["frames"], r["min_disparity"], r["max_disparity"], node,
-            r.get("pairs_in"), r.get("outputs"), dropped, num(r.get("output_rate_hz")),
-            num(r.get("latency_median_ms")), num(r.get("latency_p90_ms")),
-            num(r.get("density_mean"), "%.3f")))
+            col("pairs_in"), col("outputs"), dropped, col("output_rate_hz", "%.1f"),
+            col("latency_median_ms", "%.1f"), col("latency_p90_ms", "%.1f"),
+            col("density_mean", "%.3f")))
     page.add("")
+
+
+def ros_runs_line(ros, runs):
+    """How many times each bag was played through each node (as the cells list them)."""
+    n = ros.get("runs_per_node") or max([r.get("run", 1) for r in runs] or [1])
+    if n == 1:
+        return "Each bag played once through each node."
+    return ("Each bag played %d times through each node, the nodes taking turns; each cell lists"
+            " the runs in order (run 1 / run 2%s)." % (n, " / ..." if n > 2 else ""))
+
+
+# The stages of Pipeline::process in endo_stereo_evaluate's stage_ms_median.
+STAGES = (("rectify_preprocess", "pre-processing and rectification"),
+          ("priors", "priors, fusion, coverage (temporal stage)"),
+          ("prepare", "matcher: preparation"),
+          ("search", "matcher: search"),
+          ("edge", "matcher: depth-edge filter"),
+          ("filters", "matcher: post-filters"),
+          ("rest", "the rest"),
+          ("total", "**total**"))
+
+
+def stage_table(page, pairs):
+    """Rows: stages; columns: recording x (with, without priors); cells: ms at 1 / N threads.
+    pairs: (short name, evaluation at 1 thread or None, evaluation at the default count or None)."""
+    cols = []
+    for name, one, many in pairs:
+        for key, what in (("ours", "priors"), ("ours-no-priors", "no priors")):
+            a = next((m for m in (one or {}).get("methods", []) if m["key"] == key), None)
+            b = next((m for m in (many or {}).get("methods", []) if m["key"] == key), None)
+            if (a and "stage_ms_median" in a) or (b and "stage_ms_median" in b):
+                threads = ((one or {}).get("machine", {}).get("opencv_threads", "?"),
+                           (many or {}).get("machine", {}).get("opencv_threads", "?"))
+                cols.append(("%s, %s" % (name, what), threads,
+                             (a or {}).get("stage_ms_median", {}),
+                             (b or {}).get("stage_ms_median", {})))
+    if not cols:
+        return False
+    thread_sets = {c[1] for c in cols}
+    same = len(thread_sets) == 1
+    if same:
+        page.add("Each cell: ms at %s / %s threads." % next(iter(thread_sets)), "")
+    page.add("| stage, ms (median) | " + " | ".join(
+        c[0] + ("" if same else " (%s / %s threads)" % c[1]) for c in cols) + " |",
+        "|---|" + "---:|" * len(cols))
+    for key, label in STAGES:
+        page.add("| %s | %s |" % (label, " | ".join(
+            "%s / %s" % (num(a.get(key), "%.1f"), num(b.get(key), "%.1f")) for _, _, a, b in cols)))
+    speedups = []
+    for _, _, a, b in cols:
+        ta, tb = a.get("total"), b.get("total")
+        speedups.append("%.2fx" % (ta / tb) if ta and tb else "n/a")
+    page.add("| speed-up of the total | %s |" % " | ".join(speedups), "")
+    return True
 
 
 def demote(md_text):
@@ -153,6 +217,7 @@ def main():
     page = Page(commands, commit, dirty)
     ev = {k: load(os.path.join(a.out, k, "evaluation.json"))
           for k in ("invivo", "real960_static", "real960_moving", "generated")}
+    ev_t1 = {k: load(os.path.join(a.out, k + "_t1.json")) for k in ("invivo", "real960_moving")}
     gt = load(os.path.join(a.out, "groundtruth.json"))
     scenes = load(os.path.join(a.out, "scenes.json"))
     ros = load(os.path.join(a.ros, "ros_bench.json")) or {"runs": []}
@@ -245,8 +310,27 @@ def main():
             evaluation_table(page, e)
         page.add("No picture of the SCARED frames is published here: the data is for evaluation,"
                  " not for redistribution.", "")
+    if any(ev_t1.values()):
+        # The other runs use OpenCV's default thread count (one per CPU).
+        many = next((ev[k]["machine"].get("opencv_threads") for k in ("invivo", "real960_moving")
+                     if ev[k]), "N")
+        page.add("### 1.3 Time per stage at 1 and %s threads" % many, "",
+                 "Our pipeline's time per frame (`Pipeline::process`, the ms/frame median of 1.1"
+                 " and 1.2) split into its stages, each the median over the same frames (the"
+                 " medians need not add up to the total exactly). The 1-thread runs repeat the"
+                 " in-vivo video and the moving 960x540 crop with `--threads 1`, ours only.", "")
+        for key in ("invivo", "real960_moving"):
+            if ev_t1[key]:
+                page.provenance(key + "_t1", ev_t1[key]["machine"])
+        stage_table(page, (("in-vivo 360x288", ev_t1["invivo"], ev["invivo"]),
+                           ("SCARED 960x540 moving", ev_t1["real960_moving"],
+                            ev["real960_moving"])))
+        page.add("Search: every pass (narrowed ranges, the fallback, a scene change's second"
+                 " go) and every window size. Depth-edge filter: the measure against window"
+                 " fattening at depth edges. The rest: the call's wall time less the stages"
+                 " above. Speed-up: total at 1 thread / total at %s threads." % many, "")
     if gt:
-        page.add("### 1.3 Pairs with ground truth", "")
+        page.add("### 1.4 Pairs with ground truth", "")
         page.provenance("groundtruth", any_machine,
                         "each time is one run (not a median): a rough figure")
         page.add("| pair | method | bad2 % | bad3 % | mean error px | density % | ms |",
@@ -263,11 +347,12 @@ def main():
                  " disparity.", "")
     real_ros = [r for r in ros["runs"] if r["case"] in ("invivo", "real960")]
     if real_ros:
-        page.add("### 1.4 The nodelet on real streams at 25 fps", "",
+        page.add("### 1.5 The nodelet on real streams at 25 fps", "",
                  "The in-vivo frames and the moving 960x540 SCARED crop (100 frames, the same"
                  " circle) as bags (scripts/frames_to_bag.py: rectified camera_info), played with"
                  " `rosbag play` through endo_stereo's node and Debian's stereo_image_proc (SGBM,"
-                 " block size 7), one after the other, same disparity range.", "")
+                 " block size 7), one after the other, same disparity range. "
+                 + ros_runs_line(ros, real_ros), "")
         page.provenance("bench_ros", None, "%s CPUs, load average %s at the end; %s" % (
             ros.get("cpus"), ros.get("load_average_end"), ros.get("date")))
         ros_table(page, real_ros)
@@ -305,7 +390,8 @@ def main():
         page.add("")
     gen_ros = [r for r in ros["runs"] if r["case"] == "synthetic"]
     if gen_ros:
-        page.add("### 2.3 The nodelet on a generated stream at 25 fps", "")
+        page.add("### 2.3 The nodelet on a generated stream at 25 fps", "",
+                 ros_runs_line(ros, gen_ros), "")
         page.provenance("bench_ros", None, "%s CPUs, load average %s at the end; %s" % (
             ros.get("cpus"), ros.get("load_average_end"), ros.get("date")))
         ros_table(page, gen_ros)
@@ -322,7 +408,9 @@ def main():
             shutil.copyfile(src, os.path.join("docs", name))
     combined = {"date": date, "commit": page.commit, "commands": commands,
                 "real": {"invivo": ev["invivo"], "real960_static": ev["real960_static"],
-                         "real960_moving": ev["real960_moving"], "ground_truth": gt},
+                         "real960_moving": ev["real960_moving"], "ground_truth": gt,
+                         "invivo_1_thread": ev_t1["invivo"],
+                         "real960_moving_1_thread": ev_t1["real960_moving"]},
                 "generated": {"sequence": ev["generated"], "scenes": scenes},
                 "ros": ros}
     text_json = json.dumps(combined, indent=1)

@@ -2,7 +2,9 @@
 # The nodelet on a stream: bags played at 25 fps with `rosbag play` through endo_stereo's node and,
 # on the same bag, through Debian's stereo_image_proc (SGBM). One after the other (not
 # concurrently: on a small machine they would compete for the same cores), each as a standalone
-# node (endo_stereo_node, /usr/lib/stereo_image_proc/...).
+# node (endo_stereo_node, /usr/lib/stereo_image_proc/...), started afresh for each play. Each
+# bag is played BENCH_ROS_RUNS times (default 3) through each node, the nodes taking turns
+# (run 1 of every node, then run 2, ...), and every run is reported.
 #
 # Cases (BENCH_CASES, default "invivo real960 synthetic"; the real ones only when
 # ../shared/data/real is present):
@@ -20,11 +22,14 @@
 # the disparity's arrival at the same listener (same stamp; transport included, both ways the
 # same), density (valid disparity pixels).
 #
-# Writes out/bench_ros/ (bags, logs, per-run JSON, ros_bench.json) and the table to $BENCH_NOTES
-# (default out/bench_ros/ros_bench.md); scripts/bench_report.py puts it in BENCHMARKS.md.
+# Writes out/bench_ros/ (bags, logs, the listener's JSON of every run: CASE_TARGET_runK.json,
+# ros_bench.json with one entry per run) and the table to $BENCH_NOTES (default
+# out/bench_ros/ros_bench.md: one row per case and node, each cell run 1 / run 2 / ...);
+# scripts/bench_report.py puts it in BENCHMARKS.md.
 # Environment: BENCH_CASES, BENCH_FRAMES, BENCH_REAL_FRAMES, BENCH_WIDTH, BENCH_HEIGHT,
-# BENCH_RATE (1.0 = 25 fps), BENCH_TARGETS ("endo_stereo stereo_image_proc"), BENCH_ES_PARAMS
-# (endo_stereo's private parameters on top of config/default.yaml, "name=value ...").
+# BENCH_RATE (1.0 = 25 fps), BENCH_TARGETS ("endo_stereo stereo_image_proc"), BENCH_ROS_RUNS
+# (plays per case and node, default 3), BENCH_ES_PARAMS (endo_stereo's private parameters on
+# top of config/default.yaml, "name=value ...").
 set -uo pipefail
 source "$(dirname "$0")/env.sh"
 es_source_ws
@@ -36,6 +41,11 @@ WIDTH="${BENCH_WIDTH:-960}"
 HEIGHT="${BENCH_HEIGHT:-540}"
 RATE="${BENCH_RATE:-1.0}"
 TARGETS="${BENCH_TARGETS:-endo_stereo stereo_image_proc}"
+RUNS="${BENCH_ROS_RUNS:-3}"
+if ! [[ "$RUNS" =~ ^[1-9][0-9]*$ ]]; then
+  echo "[bench_ros] BENCH_ROS_RUNS must be a positive integer, got '$RUNS'" >&2
+  exit 2
+fi
 REAL="$(cd "$ES_ROOT/.." && pwd)/shared/data/real"
 if [ -d "$REAL" ]; then
   CASES="${BENCH_CASES:-invivo real960 synthetic}"
@@ -144,8 +154,9 @@ roscore -p "$PORT" > "$OUT/log/roscore.log" 2>&1 &
 PIDS+=($!)
 for _ in $(seq 100); do rosparam list > /dev/null 2>&1 && break; sleep 0.2; done
 
-run_target() {  # $1 = endo_stereo | stereo_image_proc, $2 = case
-  local target=$1 case_name=$2 pid name
+run_target() {  # $1 = endo_stereo | stereo_image_proc, $2 = case, $3 = run (1, 2, ...)
+  local target=$1 case_name=$2 run=$3 pid name
+  local id="${case_name}_${target}_run${run}"
   rosparam delete "$NS" > /dev/null 2>&1 || true
   if [ "$target" = endo_stereo ]; then
     name="$NS/endo_stereo"
@@ -156,7 +167,7 @@ run_target() {  # $1 = endo_stereo | stereo_image_proc, $2 = case
       rosparam set "$name/${kv%%=*}" "${kv#*=}"
     done
     "$WS/devel/lib/endo_stereo/endo_stereo_node" __ns:="$NS" __name:=endo_stereo \
-      > "$OUT/log/${case_name}_$target.log" 2>&1 &
+      > "$OUT/log/$id.log" 2>&1 &
   else
     name="$NS/stereo_image_proc"
     ROS_PACKAGE_PATH="$("$ES_ROOT/scripts/stereo_image_proc_env.sh" "$OUT/sip_pkgs")"
@@ -166,21 +177,21 @@ run_target() {  # $1 = endo_stereo | stereo_image_proc, $2 = case
     rosparam set "$name/disparity_range" "$(( DMAX - DMIN + 1 ))"
     rosparam set "$name/correlation_window_size" 7   # SGBM block size (odd, 5..11 usual)
     /usr/lib/stereo_image_proc/stereo_image_proc __ns:="$NS" __name:=stereo_image_proc \
-      > "$OUT/log/${case_name}_$target.log" 2>&1 &
+      > "$OUT/log/$id.log" 2>&1 &
   fi
   pid=$!
   PIDS+=($pid)
   sleep 3
   rm -f "$OUT/.done" "$OUT/.ready"
   /usr/bin/python3 "$ES_ROOT/scripts/demo_capture.py" listen --ns "$NS" --nodelet "$name" \
-    --frames "$NFRAMES" --out "$OUT/${case_name}_$target.json" --done-file "$OUT/.done" \
-    --ready-file "$OUT/.ready" --timeout-s 600 2> "$OUT/log/listen_${case_name}_$target.err" &
+    --frames "$NFRAMES" --out "$OUT/$id.json" --done-file "$OUT/.done" \
+    --ready-file "$OUT/.ready" --timeout-s 600 2> "$OUT/log/listen_$id.err" &
   local lpid=$!
   PIDS+=($lpid)
   for _ in $(seq 100); do [ -e "$OUT/.ready" ] && break; sleep 0.1; done
-  echo "[bench_ros] $case_name / $target: playing"
+  echo "[bench_ros] $case_name / $target: playing (run $run of $RUNS)"
   rosbag play -q --wait-for-subscribers -r "$RATE" "$BAG" \
-    > "$OUT/log/play_${case_name}_$target.log" 2>&1
+    > "$OUT/log/play_$id.log" 2>&1
   touch "$OUT/.done"
   wait "$lpid"
   kill "$pid" 2>/dev/null
@@ -195,66 +206,84 @@ for c in $CASES; do
     continue
   fi
   for t in $TARGETS; do
-    rm -f "$OUT/${c}_$t.json"
-    run_target "$t" "$c"
+    rm -f "$OUT/${c}_$t.json" "$OUT/${c}_${t}"_run*.json
+  done
+  for run in $(seq "$RUNS"); do
+    for t in $TARGETS; do
+      run_target "$t" "$c" "$run"
+    done
   done
   CASE_LINES+=("$c|$DESC|$NFRAMES|$DMIN|$DMAX")
 done
 
-/usr/bin/python3 - "$OUT" "$NS" "$BENCH_NOTES" "$RATE" "$TARGETS" "${CASE_LINES[@]}" <<'PYEOF'
+/usr/bin/python3 - "$OUT" "$NS" "$BENCH_NOTES" "$RATE" "$TARGETS" "$RUNS" "${CASE_LINES[@]}" <<'PYEOF'
 import json, os, subprocess, sys, time
-out, ns, notes, rate, targets = sys.argv[1:6]
+out, ns, notes, rate, targets, runs = sys.argv[1:7]
 targets = targets.split()
-cases = [c.split("|") for c in sys.argv[6:]]
+runs = int(runs)
+cases = [c.split("|") for c in sys.argv[7:]]
 def f(v, fmt="%.1f"):
     return "n/a" if v is None else fmt % v
 cpu = subprocess.run("nproc", capture_output=True, text=True).stdout.strip()
 load = open("/proc/loadavg").read().split()[:3]
 rows = ["| stream | node | pairs in | outputs | dropped | output rate (Hz) | latency median (ms) | latency p90 (ms) | density |",
         "|---|---|---:|---:|---|---:|---:|---:|---:|"]
-results = []
+results = []  # one entry per run
 notes_lines = []
 for name, desc, nframes, dmin, dmax in cases:
     for t in targets:
-        p = os.path.join(out, "%s_%s.json" % (name, t))
         node = "endo_stereo (default preset)" if t == "endo_stereo" else "stereo_image_proc (SGBM, Debian)"
         stream = "%s, %s frames, %s..%s" % (desc, nframes, dmin, dmax)
-        if not os.path.exists(p):
+        row = []  # per run: its entry, or None when its JSON is missing
+        for k in range(1, runs + 1):
+            p = os.path.join(out, "%s_%s_run%d.json" % (name, t, k))
+            if not os.path.exists(p):
+                row.append(None)
+                continue
+            r = json.load(open(p)).get(ns, {})
+            diag = r.get("nodelet_diagnostics", {})
+            entry = {"case": name, "description": desc, "frames": int(nframes),
+                     "min_disparity": int(dmin), "max_disparity": int(dmax), "node": t,
+                     "run": k, "json": os.path.basename(p),
+                     "pairs_in": r.get("pairs_in"), "outputs": r.get("outputs"),
+                     "dropped_or_lost": r.get("dropped_or_lost"),
+                     "nodelet_pairs_dropped": diag.get("pairs dropped"),
+                     "nodelet_pairs_rejected": diag.get("pairs rejected"),
+                     "output_rate_hz": r.get("output_rate_over_input_span_hz"),
+                     "latency_median_ms": r.get("latency_median_ms"),
+                     "latency_p90_ms": r.get("latency_p90_ms"),
+                     "density_mean": r.get("density_mean"),
+                     "nodelet_latency_median_ms": diag.get("latency median (ms)"),
+                     "pipeline_median_ms": diag.get("pipeline median (ms)")}
+            results.append(entry)
+            row.append(entry)
+        if not any(row):
             rows.append("| %s | %s | (did not run) | | | | | | |" % (stream, node))
             continue
-        r = json.load(open(p)).get(ns, {})
-        diag = r.get("nodelet_diagnostics", {})
-        dropped = r.get("dropped_or_lost")
-        if diag.get("pairs dropped") is not None:
-            dropped = "%s (nodelet: %s dropped, %s rejected)" % (dropped, diag.get("pairs dropped"),
-                                                                 diag.get("pairs rejected"))
-        if diag.get("pipeline median (ms)") is not None:
+
+        def col(key, fmt="%s"):  # run 1 / run 2 / ...; "-" for a run without a result
+            return " / ".join("-" if e is None else f(e.get(key), fmt) for e in row)
+        dropped = col("dropped_or_lost")
+        if any(e and e.get("nodelet_pairs_dropped") is not None for e in row):
+            dropped += " (nodelet: %s dropped, %s rejected)" % (col("nodelet_pairs_dropped"),
+                                                                col("nodelet_pairs_rejected"))
+        if any(e and e.get("pipeline_median_ms") is not None for e in row):
             notes_lines.append("%s: endo_stereo's own diagnostics: latency (pair complete -> "
                                "published) median %s ms, of which Pipeline::process median %s ms."
-                               % (desc, diag.get("latency median (ms)"),
-                                  diag.get("pipeline median (ms)")))
+                               % (desc, col("nodelet_latency_median_ms"),
+                                  col("pipeline_median_ms")))
         rows.append("| %s | %s | %s | %s | %s | %s | %s | %s | %s |" % (
-            stream, node, r.get("pairs_in"), r.get("outputs"), dropped,
-            f(r.get("output_rate_over_input_span_hz")), f(r.get("latency_median_ms")),
-            f(r.get("latency_p90_ms")), f(r.get("density_mean"), "%.3f")))
-        results.append({"case": name, "description": desc, "frames": int(nframes),
-                        "min_disparity": int(dmin), "max_disparity": int(dmax), "node": t,
-                        "pairs_in": r.get("pairs_in"), "outputs": r.get("outputs"),
-                        "dropped_or_lost": r.get("dropped_or_lost"),
-                        "nodelet_pairs_dropped": diag.get("pairs dropped"),
-                        "nodelet_pairs_rejected": diag.get("pairs rejected"),
-                        "output_rate_hz": r.get("output_rate_over_input_span_hz"),
-                        "latency_median_ms": r.get("latency_median_ms"),
-                        "latency_p90_ms": r.get("latency_p90_ms"),
-                        "density_mean": r.get("density_mean"),
-                        "pipeline_median_ms": diag.get("pipeline median (ms)")})
+            stream, node, col("pairs_in"), col("outputs"), dropped, col("output_rate_hz", "%.1f"),
+            col("latency_median_ms", "%.1f"), col("latency_p90_ms", "%.1f"),
+            col("density_mean", "%.3f")))
 stamp = time.strftime("%Y-%m-%d %H:%M %Z")
 text = "\n".join([
     "# The nodelet against stereo_image_proc on the same bags",
     "",
-    "Measured %s by scripts/bench_ros.sh: each bag played with `rosbag play` at %g fps; the same"
-    " disparity range for both nodes; each node standalone, one after the other. Machine: %s"
-    " cores, load average %s at the end." % (stamp, 25 * float(rate), cpu, " ".join(load)),
+    "Measured %s by scripts/bench_ros.sh: each bag played with `rosbag play` at %g fps, %d times"
+    " through each node (each cell: run 1 / run 2 / ...); the same disparity range for both"
+    " nodes; each node standalone, one after the other. Machine: %s cores, load average %s at"
+    " the end." % (stamp, 25 * float(rate), runs, cpu, " ".join(load)),
     "",
     *rows,
     "",
@@ -268,7 +297,7 @@ text = "\n".join([
 os.makedirs(os.path.dirname(notes), exist_ok=True)
 open(notes, "w").write(text)
 with open(os.path.join(out, "ros_bench.json"), "w") as fh:
-    json.dump({"date": stamp, "rate_fps": 25 * float(rate), "cpus": cpu,
+    json.dump({"date": stamp, "rate_fps": 25 * float(rate), "cpus": cpu, "runs_per_node": runs,
                "load_average_end": " ".join(load), "runs": results}, fh, indent=2)
 print(text)
 print("[bench_ros] written to", notes, "and", os.path.join(out, "ros_bench.json"))

@@ -2,8 +2,8 @@
 // recording without ground truth. Runs the Pipeline (temporal priors on, and off) and both OpenCV
 // matchers on the same rectified frames, and reports per method density, temporal stability
 // (disparity jumps between consecutive frames, raw and motion-compensated), coverage of the
-// central pixels and time per frame; pictures of one frame. The metrics are
-// sequence_evaluation.hpp's. `--help` lists flags.
+// central pixels and time per frame (ours also per stage of the pipeline); pictures of one
+// frame. The metrics are sequence_evaluation.hpp's. `--help` lists flags.
 //
 // Exit status: 0 success; 1 an input could not be read or processed, or an output not written;
 // 2 bad usage.
@@ -11,6 +11,7 @@
 #include <unistd.h>
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -108,15 +109,19 @@ Output:
   --quiet                     no progress lines
   --help
 
-The table goes to stdout. Density: share of pixels with a value in a frame. Jumps: among pixels
-with a value in two consecutive frames, the share whose disparity changed by more than T px.
-Motion-compensated flicker: among the same pixels, the share whose change differs by more than
-T px from the mean change of the pixels with a value in both frames within the --flicker-window
-square centred on it (itself included): motion shared by the neighbourhood cancels. Coverage:
-share of the central pixels (middle half in each direction) with a value in every window of N
-consecutive frames; never: without a value in any frame. Ours also gets a line for its fused
-output (the latest value measured within the pipeline's temporal.fused_max_age_frames); its own
-line counts only the values measured on each frame.
+The tables go to stdout: the figures per method, then ours' time per stage. Density: share of
+pixels with a value in a frame. Jumps: among pixels with a value in two consecutive frames, the
+share whose disparity changed by more than T px. Motion-compensated flicker: among the same
+pixels, the share whose change differs by more than T px from the mean change of the pixels with
+a value in both frames within the --flicker-window square centred on it (itself included): motion
+shared by the neighbourhood cancels. Coverage: share of the central pixels (middle half in each
+direction) with a value in every window of N consecutive frames; never: without a value in any
+frame. Ours also gets a line for its fused output (the latest value measured within the
+pipeline's temporal.fused_max_age_frames); its own line counts only the values measured on each
+frame. Stages of ours (the median of each over the timed frames; the JSON's stage_ms_median):
+pre-processing and rectification, the temporal stage (priors, fusion, coverage), the matcher's
+preparation, search, depth-edge filter and post-filters, the rest (the call's wall time less all
+of these), the total (the call's wall time).
 )";
 
 struct Options {
@@ -275,12 +280,58 @@ double median(std::vector<double> v) {
   return n % 2 ? v[n / 2] : 0.5 * (v[n / 2 - 1] + v[n / 2]);
 }
 
+/// The stages of a Pipeline::process call, as endo_stereo_temporal_bench --stages splits them:
+/// pre-processing and rectification; the temporal stage (priors, fusion, coverage); the matcher's
+/// preparation, search (all passes, all window sizes), depth-edge measure and post-filters; the
+/// rest (the call's wall time less all of these: conversions, counts, range handling); the call's
+/// wall time.
+enum Stage {
+  kStageRectify,
+  kStagePriors,
+  kStagePrepare,
+  kStageSearch,
+  kStageEdge,
+  kStageFilters,
+  kStageRest,
+  kStageTotal,
+  kNumStages
+};
+struct StageName {
+  const char* key;    // in the JSON
+  const char* label;  // in the table
+};
+constexpr StageName kStageNames[kNumStages] = {
+    {"rectify_preprocess", "pre-processing and rectification"},
+    {"priors", "priors, fusion, coverage (temporal stage)"},
+    {"prepare", "matcher: preparation (views, integrals, ranges)"},
+    {"search", "matcher: search (all passes, all window sizes)"},
+    {"edge", "matcher: depth-edge filter"},
+    {"filters", "matcher: post-filters"},
+    {"rest", "the rest (conversions, counts, range handling)"},
+    {"total", "total (Pipeline::process wall time)"}};
+
+/// Splits one frame's @p wall_ms (the whole process() call) into the stages.
+std::array<double, kNumStages> stageTimes(const endo_stereo::PipelineOutput& out, double wall_ms) {
+  const endo_stereo::MatchStats& st = out.match.stats;
+  std::array<double, kNumStages> t{};
+  t[kStageRectify] = out.preprocess_ms + out.rectify_ms;
+  t[kStagePriors] = out.temporal_ms;
+  t[kStagePrepare] = st.prepare_ms;
+  t[kStageSearch] = st.match_ms - st.prepare_ms - st.edge_ms;
+  t[kStageEdge] = st.edge_ms;
+  t[kStageFilters] = st.filter_ms;
+  t[kStageRest] = wall_ms - t[kStageRectify] - out.temporal_ms - st.match_ms - st.filter_ms;
+  t[kStageTotal] = wall_ms;
+  return t;
+}
+
 /// One disparity stream under evaluation (a method, or our fused output).
 struct Stream {
   std::string key, name;
   bool timed = true;  // fused streams come from the same call as their method
   endo_stereo::SequenceMetrics metrics;
   std::vector<double> ms, cpu_ms;
+  std::array<std::vector<double>, kNumStages> stage_ms;  // ours' measured streams only
   cv::Mat picture_disparity, picture_jumps, picture_flicker;
   explicit Stream(const endo_stereo::SequenceMetricsParams& p) : metrics(p) {}
 };
@@ -395,6 +446,13 @@ std::string evaluationJson(const Options& o, const RunInfo& r,
       j.key("ms_median").value(ms);
       j.key("cpu_ms_median").value(timingMedian(s->cpu_ms, o.skip_timing));
       if (std::isfinite(r.sgbm_ms)) j.key("time_over_sgbm").value(ms / r.sgbm_ms);
+      if (!s->stage_ms[kStageTotal].empty()) {
+        j.key("stage_ms_median").beginObject();
+        for (int k = 0; k < kNumStages; ++k) {
+          j.key(kStageNames[k].key).value(timingMedian(s->stage_ms[size_t(k)], o.skip_timing));
+        }
+        j.endObject();
+      }
       j.key("ms").beginArray();
       for (double v : s->ms) j.value(v);
       j.endArray();
@@ -698,6 +756,8 @@ int run(int argc, char** argv) {
       }
       x.measured->ms.push_back(ms);
       x.measured->cpu_ms.push_back(processCpuMs() - cpu);
+      const std::array<double, kNumStages> stages = stageTimes(x.out, ms);
+      for (int k = 0; k < kNumStages; ++k) x.measured->stage_ms[size_t(k)].push_back(stages[k]);
       x.measured->metrics.addFrame(x.out.match.disparity);
       x.fused->metrics.addFrame(x.out.fused_disparity);
       if (left_gray.empty()) {
@@ -807,6 +867,23 @@ int run(int argc, char** argv) {
       "call (threads: %d), OpenCV's the compute() call on the same rectified gray pair.%s\n",
       std::min(o.skip_timing, n - 1) + 1, n, cv::getNumThreads(),
       failed ? cv::format(" %d frame(s) failed.", failed).c_str() : "");
+  if (!ours.empty()) {
+    std::printf("\n| stage, ms (median, threads: %d) |", cv::getNumThreads());
+    for (const Ours& x : ours) std::printf(" %s |", x.measured->name.c_str());
+    std::printf("\n|---|");
+    for (size_t i = 0; i < ours.size(); ++i) std::printf("---:|");
+    std::printf("\n");
+    for (int k = 0; k < kNumStages; ++k) {
+      std::printf("| %s |", kStageNames[k].label);
+      for (const Ours& x : ours) {
+        std::printf(" %.2f |", timingMedian(x.measured->stage_ms[size_t(k)], o.skip_timing));
+      }
+      std::printf("\n");
+    }
+    std::printf(
+        "\nStages: the median of each over the same frames as the times above; the medians need "
+        "not add up to the total exactly.\n");
+  }
   std::fflush(stdout);
 
   // --- JSON ------------------------------------------------------------------------------------

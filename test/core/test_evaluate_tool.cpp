@@ -221,6 +221,25 @@ TEST_F(EvaluateTool, OpenCvFiguresOnAGeneratedSequenceMatchAnIndependentComputat
     // A floor so that an empty output fails: the matcher finds most of a generated scene.
     EXPECT_GT(m["density_mean"].as<double>(), 0.3);
   }
+  // Ours' time per stage: every stage, none negative (the rest is the call's wall time less the
+  // others, each measured inside the call), the total the call's median time.
+  for (const char* key : {"ours", "ours-no-priors"}) {
+    SCOPED_TRACE(key);
+    const YAML::Node m = methodNode(root, key);
+    const YAML::Node stages = m["stage_ms_median"];
+    ASSERT_TRUE(stages.IsMap());
+    for (const char* stage : {"rectify_preprocess", "priors", "prepare", "search", "edge",
+                              "filters", "rest", "total"}) {
+      ASSERT_TRUE(stages[stage]) << stage;
+      EXPECT_GE(stages[stage].as<double>(), 0.0) << stage;
+    }
+    EXPECT_GT(stages["search"].as<double>(), 0.0);
+    EXPECT_DOUBLE_EQ(stages["total"].as<double>(), m["ms_median"].as<double>());
+  }
+  for (const char* key : {"sgbm", "ours-fused"}) {  // ours' measured streams only
+    const YAML::Node m = methodNode(root, key);
+    EXPECT_FALSE(m["stage_ms_median"]) << key;
+  }
   const cv::Mat figure = cv::imread(dir_ + "/files/comparison.png");
   ASSERT_FALSE(figure.empty());
   EXPECT_EQ(figure.cols, 7 * 256);  // the left image and six streams, at full width (< 480)
