@@ -64,7 +64,8 @@ record() {
 if [ -d "$REAL_REL" ]; then
   record invivo "$REL_BIN/endo_stereo_evaluate" \
     --left "$REAL_REL/hamlyn_invivo1/left/%04d.png" --right "$REAL_REL/hamlyn_invivo1/right/%04d.png" \
-    --min-disparity 0 --max-disparity 127 --label "real/hamlyn_invivo1" --quiet --out "$OUT/invivo"
+    --min-disparity 0 --max-disparity 127 --label "real/hamlyn_invivo1" --threads 2 --quiet \
+    --out "$OUT/invivo"
   record invivo_t1 "$REL_BIN/endo_stereo_evaluate" \
     --left "$REAL_REL/hamlyn_invivo1/left/%04d.png" --right "$REAL_REL/hamlyn_invivo1/right/%04d.png" \
     --min-disparity 0 --max-disparity 127 --label "real/hamlyn_invivo1, 1 thread" \
@@ -76,11 +77,11 @@ if [ -d "$REAL_REL" ]; then
   record real960_static "$REL_BIN/endo_stereo_evaluate" \
     --left "$OUT/scared_rect_left.png" --right "$OUT/scared_rect_right.png" --crop 960x540 \
     --repeat 10 --min-disparity 48 --max-disparity 111 --label "SCARED ds1 960x540, static" \
-    --quiet --out "$OUT/real960_static"
+    --threads 2 --quiet --out "$OUT/real960_static"
   record real960_moving "$REL_BIN/endo_stereo_evaluate" \
     --left "$OUT/scared_rect_left.png" --right "$OUT/scared_rect_right.png" --crop 960x540 \
     --pan 75 --min-disparity 48 --max-disparity 111 --label "SCARED ds1 960x540, moving crop" \
-    --quiet --out "$OUT/real960_moving"
+    --threads 2 --quiet --out "$OUT/real960_moving"
   record real960_moving_t1 "$REL_BIN/endo_stereo_evaluate" \
     --left "$OUT/scared_rect_left.png" --right "$OUT/scared_rect_right.png" --crop 960x540 \
     --pan 75 --min-disparity 48 --max-disparity 111 \
