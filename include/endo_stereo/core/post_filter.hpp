@@ -44,4 +44,11 @@ int64_t removeIsolatedOutliers(cv::Mat& disparity, cv::Mat& code, const PostFilt
 /// @return the number of pixels filled.
 int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams& params);
 
+/// The confidence (CV_32FC1) of the pixels fillSmallHoles() filled (kCodeFilled in @p code, not
+/// in @p code_before, the codes before filling): the lowest confidence of the measured (accepted)
+/// pixels in its 3x3 square, the ones it was filled from. Rows [y_begin, y_end) only: it reads
+/// accepted pixels' confidence and writes filled pixels', so row ranges may run in parallel.
+void setFilledConfidenceRows(const cv::Mat& code, const cv::Mat& code_before, cv::Mat& confidence,
+                             int y_begin, int y_end);
+
 }  // namespace endo_stereo

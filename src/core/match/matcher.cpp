@@ -351,24 +351,8 @@ void countAcceptedPerWindow(const cv::Mat& code, int n_levels,
 // A filled pixel gets the lowest confidence of the measured neighbours it was filled from
 // (reads accepted pixels' confidence only, writes filled pixels' only: blocks are independent).
 void setFilledConfidence(const cv::Mat& code, const cv::Mat& code_before, cv::Mat& confidence) {
-  const int W = code.cols, H = code.rows;
-  forRowBlocks(H, [&](int, int y0, int y1) {
-    for (int y = y0; y < y1; ++y) {
-      const uint8_t* cd = code.ptr<uint8_t>(y);
-      const uint8_t* cb0 = code_before.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (cd[x] != kCodeFilled || cb0[x] == kCodeFilled) continue;
-        float cmin = 1.f;
-        for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
-          const uint8_t* cb = code_before.ptr<uint8_t>(yy);
-          const float* cf = confidence.ptr<float>(yy);
-          for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
-            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
-          }
-        }
-        confidence.ptr<float>(y)[x] = cmin;
-      }
-    }
+  forRowBlocks(code.rows, [&](int, int y0, int y1) {
+    setFilledConfidenceRows(code, code_before, confidence, y0, y1);
   });
 }
 

@@ -381,4 +381,25 @@ int64_t fillSmallHoles(cv::Mat& disparity, cv::Mat& code, const PostFilterParams
   return applyFills(block_fills, disparity, code);
 }
 
+void setFilledConfidenceRows(const cv::Mat& code, const cv::Mat& code_before, cv::Mat& confidence,
+                             int y0, int y1) {
+  const int W = code.cols, H = code.rows;
+    for (int y = y0; y < y1; ++y) {
+      const uint8_t* cd = code.ptr<uint8_t>(y);
+      const uint8_t* cb0 = code_before.ptr<uint8_t>(y);
+      for (int x = 0; x < W; ++x) {
+        if (cd[x] != kCodeFilled || cb0[x] == kCodeFilled) continue;
+        float cmin = 1.f;
+        for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
+          const uint8_t* cb = code_before.ptr<uint8_t>(yy);
+          const float* cf = confidence.ptr<float>(yy);
+          for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
+            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
+          }
+        }
+        confidence.ptr<float>(y)[x] = cmin;
+      }
+    }
+}
+
 }  // namespace endo_stereo

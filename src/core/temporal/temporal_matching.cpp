@@ -57,24 +57,7 @@ void applyPostFilter(MatchResult& result, const PostFilterParams& fp) {
   if (fp.fill_holes) {
     const cv::Mat code_before = code.clone();
     fillSmallHoles(disparity, code, fp);
-    // A filled pixel gets the lowest confidence of the measured neighbours it was filled from
-    // (RobustMatcher::compute()'s rule).
-    for (int y = 0; y < H; ++y) {
-      const uint8_t* cd = code.ptr<uint8_t>(y);
-      const uint8_t* cb0 = code_before.ptr<uint8_t>(y);
-      for (int x = 0; x < W; ++x) {
-        if (cd[x] != kCodeFilled || cb0[x] == kCodeFilled) continue;
-        float cmin = 1.f;
-        for (int yy = std::max(0, y - 1); yy <= std::min(H - 1, y + 1); ++yy) {
-          const uint8_t* cb = code_before.ptr<uint8_t>(yy);
-          const float* cf = confidence.ptr<float>(yy);
-          for (int xx = std::max(0, x - 1); xx <= std::min(W - 1, x + 1); ++xx) {
-            if (cb[xx] >= kCodeAcceptedBase) cmin = std::min(cmin, cf[xx]);
-          }
-        }
-        confidence.ptr<float>(y)[x] = cmin;
-      }
-    }
+    setFilledConfidenceRows(code, code_before, confidence, 0, H);
   }
   // Counters after the filters; a rejected pixel has confidence 0.
   MatchStats& st = result.stats;
