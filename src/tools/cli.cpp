@@ -30,13 +30,13 @@
 namespace {
 
 using endo_stereo::tools::formatPattern;
+using endo_stereo::tools::InputError;
 using endo_stereo::tools::isPattern;
 using endo_stereo::tools::JsonWriter;
-using endo_stereo::tools::kExitUsage;
+using endo_stereo::tools::kExitInput;
 using endo_stereo::tools::validPattern;
 
 constexpr int kExitOk = 0;
-constexpr int kExitInput = 1;
 
 const char* kUsage = R"(endo_stereo_cli - robust dense stereo (Bernhardt et al. 2012) on image files
 
@@ -90,19 +90,16 @@ Exit status: 0 success, 1 unreadable or unprocessable input (or unwritable outpu
 or parameters.
 )";
 
-struct Options {
-  std::string left, right;
-  bool has_first = false;
-  int first = 0;
-  int count = -1;
-  double fps = 25.0;
-  std::string params_file;
-  std::vector<std::string> overrides;
-  bool has_min = false, has_max = false;
-  int min_disparity = 0, max_disparity = 0;
-  bool has_threads = false;
-  int threads = 0;
-  std::string calib;
+using endo_stereo::tools::ArgReader;
+using endo_stereo::tools::UsageError;
+
+// The shared flags (tool_args.hpp) the CLI takes, with their ranges' defaults, and its own.
+struct Options : endo_stereo::tools::SharedOptions {
+  Options()
+      : SharedOptions(endo_stereo::tools::kFlagLeftRight | endo_stereo::tools::kFlagFirst |
+                      endo_stereo::tools::kFlagCount | endo_stereo::tools::kFlagFps |
+                      endo_stereo::tools::kFlagParams | endo_stereo::tools::kFlagDisparityRange |
+                      endo_stereo::tools::kFlagThreads | endo_stereo::tools::kFlagQuiet) {}
   bool uncalibrated = false;
   bool has_focal = false, has_baseline = false;
   double focal = 0.0, baseline = 0.0;
@@ -111,90 +108,72 @@ struct Options {
   std::string out_rectified, out_disparity, out_color, out_cloud, out_fused, out_coverage, stats;
   bool ply_ascii = false;
   bool no_priors = false;
-  bool quiet = false;
   bool list_params = false;
   bool markdown = false;
 };
 
-using endo_stereo::tools::UsageError;
+// --uncalibrated, --focal, --baseline, --downsample: true when the flag is one of them.
+bool readRectifyOption(ArgReader& args, Options& o) {
+  if (args.is("--uncalibrated")) {
+    o.uncalibrated = true;
+  } else if (args.is("--focal")) {
+    o.focal = args.positive();
+    o.has_focal = true;
+  } else if (args.is("--baseline")) {
+    o.baseline = args.positive();
+    o.has_baseline = true;
+  } else if (args.is("--downsample")) {
+    o.downsample = args.integer();
+    o.has_downsample = true;
+  } else {
+    return false;
+  }
+  return true;
+}
 
-// An input that cannot be read or processed, or an output that cannot be written (kExitInput).
-struct InputError {
-  std::string message;
-};
+// The files written: --out-*, --ply-ascii, --stats.
+bool readOutputOption(ArgReader& args, Options& o) {
+  if (args.is("--out-rectified")) {
+    o.out_rectified = args.text();
+  } else if (args.is("--out-disparity")) {
+    o.out_disparity = args.text();
+  } else if (args.is("--out-color")) {
+    o.out_color = args.text();
+  } else if (args.is("--out-cloud")) {
+    o.out_cloud = args.text();
+  } else if (args.is("--ply-ascii")) {
+    o.ply_ascii = true;
+  } else if (args.is("--out-fused")) {
+    o.out_fused = args.text();
+  } else if (args.is("--out-coverage")) {
+    o.out_coverage = args.text();
+  } else if (args.is("--stats")) {
+    o.stats = args.text();
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// --no-priors, --list-params, --markdown.
+bool readRunOption(ArgReader& args, Options& o) {
+  if (args.is("--no-priors")) {
+    o.no_priors = true;
+  } else if (args.is("--list-params")) {
+    o.list_params = true;
+  } else if (args.is("--markdown")) {
+    o.markdown = true;
+  } else {
+    return false;
+  }
+  return true;
+}
 
 Options parseArgs(int argc, char** argv) {
   Options o;
-  endo_stereo::tools::ArgReader args(argc, argv);
-  while (args.next()) {
-    if (args.is("--help") || args.is("-h")) {
-      std::cout << kUsage;
-      std::exit(kExitOk);
-    } else if (args.is("--left")) {
-      o.left = args.text();
-    } else if (args.is("--right")) {
-      o.right = args.text();
-    } else if (args.is("--first")) {
-      o.first = args.integer(0);
-      o.has_first = true;
-    } else if (args.is("--count")) {
-      o.count = args.integer(1);
-    } else if (args.is("--fps")) {
-      o.fps = args.positive();
-    } else if (args.is("--params")) {
-      o.params_file = args.text();
-    } else if (args.is("--set")) {
-      o.overrides.push_back(args.text());
-    } else if (args.is("--min-disparity")) {
-      o.min_disparity = args.integer();
-      o.has_min = true;
-    } else if (args.is("--max-disparity")) {
-      o.max_disparity = args.integer();
-      o.has_max = true;
-    } else if (args.is("--threads")) {
-      o.threads = args.integer(0);
-      o.has_threads = true;
-    } else if (args.is("--calib")) {
-      o.calib = args.text();
-    } else if (args.is("--uncalibrated")) {
-      o.uncalibrated = true;
-    } else if (args.is("--focal")) {
-      o.focal = args.positive();
-      o.has_focal = true;
-    } else if (args.is("--baseline")) {
-      o.baseline = args.positive();
-      o.has_baseline = true;
-    } else if (args.is("--downsample")) {
-      o.downsample = args.integer();
-      o.has_downsample = true;
-    } else if (args.is("--out-rectified")) {
-      o.out_rectified = args.text();
-    } else if (args.is("--out-disparity")) {
-      o.out_disparity = args.text();
-    } else if (args.is("--out-color")) {
-      o.out_color = args.text();
-    } else if (args.is("--out-cloud")) {
-      o.out_cloud = args.text();
-    } else if (args.is("--ply-ascii")) {
-      o.ply_ascii = true;
-    } else if (args.is("--out-fused")) {
-      o.out_fused = args.text();
-    } else if (args.is("--out-coverage")) {
-      o.out_coverage = args.text();
-    } else if (args.is("--stats")) {
-      o.stats = args.text();
-    } else if (args.is("--no-priors")) {
-      o.no_priors = true;
-    } else if (args.is("--quiet")) {
-      o.quiet = true;
-    } else if (args.is("--list-params")) {
-      o.list_params = true;
-    } else if (args.is("--markdown")) {
-      o.markdown = true;
-    } else {
-      args.unknown();
-    }
-  }
+  endo_stereo::tools::readArguments(argc, argv, kUsage, o, [&o](ArgReader& args) {
+    return readRectifyOption(args, o) || readOutputOption(args, o) || readRunOption(args, o);
+  });
   if (o.markdown && !o.list_params) throw UsageError("--markdown goes with --list-params");
   if (o.list_params) return o;
   if (o.left.empty() || o.right.empty()) throw UsageError("--left and --right are required");
@@ -271,6 +250,170 @@ void writeRejections(JsonWriter& j, const endo_stereo::MatchStats& s) {
   j.endObject();
 }
 
+// The sums over the frames that the summary reports.
+struct FrameTotals {
+  std::vector<double> total_ms, match_ms;
+  double density_sum = 0;
+  endo_stereo::MatchStats sums;
+  int64_t hits = 0, misses = 0, narrowed = 0;
+};
+
+FrameTotals sumFrames(const std::vector<FrameRecord>& frames) {
+  FrameTotals t;
+  for (const FrameRecord& f : frames) {
+    t.total_ms.push_back(f.total_ms);
+    t.match_ms.push_back(f.match_ms);
+    t.density_sum += f.match.density();
+    for (int c = 0; c < endo_stereo::kNumRejectCodes; ++c) {
+      t.sums.rejected[c] += f.match.rejected[c];
+    }
+    t.sums.valid_pixels += f.match.valid_pixels;
+    t.sums.total_pixels += f.match.total_pixels;
+    t.hits += f.prior.prior_hits;
+    t.misses += f.prior.prior_misses;
+    t.narrowed += f.prior.narrowed_pixels;
+  }
+  return t;
+}
+
+// The coverage map's figures over the sequence.
+void writeCoverage(JsonWriter& j, const endo_stereo::CoverageStats& c) {
+  j.beginObject();
+  j.key("frames").value(c.frames);
+  j.key("within_frames").value(c.within_frames);
+  j.key("central_share_updated_within").value(c.central_share);
+  j.key("overall_share_updated_within").value(c.overall_share);
+  j.key("central_never_updated").value(c.central_never);
+  j.key("overall_never_updated").value(c.overall_never);
+  j.key("central_region").beginArray();
+  j.value(c.central_region.x).value(c.central_region.y);
+  j.value(c.central_region.width).value(c.central_region.height);
+  j.endArray();
+  j.endObject();
+}
+
+// Density, times and rejections over all frames; in sequence mode also the priors' figures and,
+// when the pipeline kept it, the coverage.
+void writeSummary(JsonWriter& j, const std::vector<FrameRecord>& frames, bool sequence,
+                  const endo_stereo::Pipeline& pipeline, bool coverage) {
+  const FrameTotals t = sumFrames(frames);
+  j.beginObject();
+  j.key("density").value(frames.empty() ? 0.0 : t.density_sum / frames.size());
+  j.key("ms_per_frame_median").value(median(t.total_ms));
+  j.key("match_ms_median").value(median(t.match_ms));
+  j.key("rejected");
+  writeRejections(j, t.sums);
+  j.key("valid_pixels").value(t.sums.valid_pixels);
+  j.key("total_pixels").value(t.sums.total_pixels);
+  if (sequence) {
+    // Steady state: the first frame searches the full range whatever the priors.
+    std::vector<double> steady(t.total_ms.begin() + std::min<size_t>(1, t.total_ms.size()),
+                               t.total_ms.end());
+    j.key("ms_per_frame_median_after_first").value(median(steady));
+    j.key("prior_narrowed_pixels").value(t.narrowed);
+    j.key("prior_hits").value(t.hits);
+    j.key("prior_misses").value(t.misses);
+    j.key("prior_hit_rate")
+        .value(t.hits + t.misses ? double(t.hits) / double(t.hits + t.misses) : 0.0);
+  }
+  if (coverage && pipeline.temporal().coverage().frames() > 0) {
+    j.key("coverage");
+    writeCoverage(j, pipeline.temporal().coverage().stats());
+  }
+  j.endObject();
+}
+
+// A frame's milliseconds per stage.
+void writeFrameTimes(JsonWriter& j, const FrameRecord& f) {
+  j.beginObject();
+  j.key("total").value(f.total_ms);
+  j.key("preprocess").value(f.preprocess_ms);
+  j.key("rectify").value(f.rectify_ms);
+  j.key("match").value(f.match_ms);
+  j.key("match_only").value(f.match.match_ms);
+  j.key("match_prepare").value(f.match.prepare_ms);  // part of match_only
+  j.key("match_edge").value(f.match.edge_ms);        // part of match_only
+  j.key("filter").value(f.match.filter_ms);
+  j.key("temporal").value(f.temporal_ms);
+  j.key("cloud").value(f.cloud_ms);
+  j.endObject();
+}
+
+// What a frame's temporal priors did.
+void writePriorStats(JsonWriter& j, const endo_stereo::TemporalPriorStats& prior) {
+  j.beginObject();
+  j.key("narrowed_pixels").value(prior.narrowed_pixels);
+  j.key("full_range_pixels").value(prior.full_range_pixels);
+  j.key("fallback_pixels").value(prior.fallback_pixels);
+  j.key("deferred_pixels").value(prior.deferred_pixels);
+  j.key("edge_zone_pixels").value(prior.edge_zone_pixels);
+  j.key("hits").value(prior.prior_hits);
+  j.key("misses").value(prior.prior_misses);
+  j.key("mean_narrowed_width_px").value(prior.mean_narrowed_width_px);
+  j.endObject();
+}
+
+// How well a frame's rows line up after rectification, when it was measured.
+void writeRectificationQuality(JsonWriter& j, const endo_stereo::RectificationQuality& q) {
+  j.beginObject();
+  j.key("method").value(q.method);
+  j.key("measured").value(q.valid);
+  if (q.valid) {
+    j.key("median_offset_px").value(q.median_offset_px);
+    j.key("p90_offset_px").value(q.p90_offset_px);
+    j.key("num_matches").value(q.num_matches);
+    j.key("measured_on_frame").value(q.frame_index);
+    if (q.row_offset_matches > 0) {
+      // the fitted offset plane c0 + c1 x + c2 y (px) and its matches (rectify.row_correction)
+      j.key("row_offset_px").beginArray();
+      for (int i = 0; i < 3; ++i) j.value(q.row_offset[i]);
+      j.endArray();
+      j.key("row_offset_matches").value(q.row_offset_matches);
+    }
+    j.key("warning").value(q.warning);
+  }
+  if (q.misaligned) j.key("misaligned").value(true);
+  if (!q.message.empty()) j.key("message").value(q.message);
+  j.endObject();
+}
+
+// One frame: files, size, density, rejections, accepted matches per window size, times, priors,
+// rectification quality.
+void writeFrame(JsonWriter& j, const FrameRecord& f, const endo_stereo::PipelineParams& p) {
+  j.beginObject();
+  j.key("index").value(f.index);
+  j.key("stamp_s").value(f.stamp_s);
+  j.key("left").value(f.left);
+  j.key("right").value(f.right);
+  j.key("width").value(f.size.width);
+  j.key("height").value(f.size.height);
+  j.key("density").value(f.match.density());
+  j.key("valid_pixels").value(f.match.valid_pixels);
+  j.key("total_pixels").value(f.match.total_pixels);
+  j.key("rejected");
+  writeRejections(j, f.match);
+  j.key("accepted_per_window").beginObject();
+  for (int k = 0; k < 16; ++k) {
+    const int w = p.matcher.window_min_px + k * p.matcher.window_step_px;
+    if (w > p.matcher.window_max_px) break;
+    j.key(std::to_string(w)).value(f.match.accepted_per_window[k]);
+  }
+  j.endObject();
+  j.key("ms");
+  writeFrameTimes(j, f);
+  j.key("priors_used").value(f.priors_used);
+  j.key("priors_rejected").value(f.priors_rejected);
+  j.key("priors_reset").value(f.priors_reset);
+  if (f.priors_reset) j.key("reset_reason").value(f.reset_reason);
+  j.key("prior");
+  writePriorStats(j, f.prior);
+  j.key("rectification");
+  writeRectificationQuality(j, f.quality);
+  j.endObject();
+}
+
+// The statistics file: the run, its summary first (the figures at the top for a person reading
+// it), every frame, the parameters.
 std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo::PipelineParams& p,
                       bool sequence, int failed_frames, const endo_stereo::Pipeline& pipeline,
                       bool coverage) {
@@ -280,129 +423,11 @@ std::string statsJson(const std::vector<FrameRecord>& frames, const endo_stereo:
   j.key("mode").value(sequence ? "sequence" : "single");
   j.key("frames_processed").value(static_cast<int>(frames.size()));
   j.key("frames_failed").value(failed_frames);
-
-  // Summary first, so a person reading the file sees the figures at the top.
-  std::vector<double> total_ms, match_ms;
-  double density_sum = 0;
-  endo_stereo::MatchStats sums;
-  int64_t hits = 0, misses = 0, narrowed = 0;
-  for (const FrameRecord& f : frames) {
-    total_ms.push_back(f.total_ms);
-    match_ms.push_back(f.match_ms);
-    density_sum += f.match.density();
-    for (int c = 0; c < endo_stereo::kNumRejectCodes; ++c) sums.rejected[c] += f.match.rejected[c];
-    sums.valid_pixels += f.match.valid_pixels;
-    sums.total_pixels += f.match.total_pixels;
-    hits += f.prior.prior_hits;
-    misses += f.prior.prior_misses;
-    narrowed += f.prior.narrowed_pixels;
-  }
-  j.key("summary").beginObject();
-  j.key("density").value(frames.empty() ? 0.0 : density_sum / frames.size());
-  j.key("ms_per_frame_median").value(median(total_ms));
-  j.key("match_ms_median").value(median(match_ms));
-  j.key("rejected");
-  writeRejections(j, sums);
-  j.key("valid_pixels").value(sums.valid_pixels);
-  j.key("total_pixels").value(sums.total_pixels);
-  if (sequence) {
-    // Steady state: the first frame searches the full range whatever the priors.
-    std::vector<double> steady(total_ms.begin() + std::min<size_t>(1, total_ms.size()),
-                               total_ms.end());
-    j.key("ms_per_frame_median_after_first").value(median(steady));
-    j.key("prior_narrowed_pixels").value(narrowed);
-    j.key("prior_hits").value(hits);
-    j.key("prior_misses").value(misses);
-    j.key("prior_hit_rate").value(hits + misses ? double(hits) / double(hits + misses) : 0.0);
-  }
-  if (coverage && pipeline.temporal().coverage().frames() > 0) {
-    const endo_stereo::CoverageStats c = pipeline.temporal().coverage().stats();
-    j.key("coverage").beginObject();
-    j.key("frames").value(c.frames);
-    j.key("within_frames").value(c.within_frames);
-    j.key("central_share_updated_within").value(c.central_share);
-    j.key("overall_share_updated_within").value(c.overall_share);
-    j.key("central_never_updated").value(c.central_never);
-    j.key("overall_never_updated").value(c.overall_never);
-    j.key("central_region").beginArray();
-    j.value(c.central_region.x).value(c.central_region.y);
-    j.value(c.central_region.width).value(c.central_region.height);
-    j.endArray();
-    j.endObject();
-  }
-  j.endObject();
-
+  j.key("summary");
+  writeSummary(j, frames, sequence, pipeline, coverage);
   j.key("frames").beginArray();
-  for (const FrameRecord& f : frames) {
-    j.beginObject();
-    j.key("index").value(f.index);
-    j.key("stamp_s").value(f.stamp_s);
-    j.key("left").value(f.left);
-    j.key("right").value(f.right);
-    j.key("width").value(f.size.width);
-    j.key("height").value(f.size.height);
-    j.key("density").value(f.match.density());
-    j.key("valid_pixels").value(f.match.valid_pixels);
-    j.key("total_pixels").value(f.match.total_pixels);
-    j.key("rejected");
-    writeRejections(j, f.match);
-    j.key("accepted_per_window").beginObject();
-    for (int k = 0; k < 16; ++k) {
-      const int w = p.matcher.window_min_px + k * p.matcher.window_step_px;
-      if (w > p.matcher.window_max_px) break;
-      j.key(std::to_string(w)).value(f.match.accepted_per_window[k]);
-    }
-    j.endObject();
-    j.key("ms").beginObject();
-    j.key("total").value(f.total_ms);
-    j.key("preprocess").value(f.preprocess_ms);
-    j.key("rectify").value(f.rectify_ms);
-    j.key("match").value(f.match_ms);
-    j.key("match_only").value(f.match.match_ms);
-    j.key("match_prepare").value(f.match.prepare_ms);  // part of match_only
-    j.key("match_edge").value(f.match.edge_ms);        // part of match_only
-    j.key("filter").value(f.match.filter_ms);
-    j.key("temporal").value(f.temporal_ms);
-    j.key("cloud").value(f.cloud_ms);
-    j.endObject();
-    j.key("priors_used").value(f.priors_used);
-    j.key("priors_rejected").value(f.priors_rejected);
-    j.key("priors_reset").value(f.priors_reset);
-    if (f.priors_reset) j.key("reset_reason").value(f.reset_reason);
-    j.key("prior").beginObject();
-    j.key("narrowed_pixels").value(f.prior.narrowed_pixels);
-    j.key("full_range_pixels").value(f.prior.full_range_pixels);
-    j.key("fallback_pixels").value(f.prior.fallback_pixels);
-    j.key("deferred_pixels").value(f.prior.deferred_pixels);
-    j.key("edge_zone_pixels").value(f.prior.edge_zone_pixels);
-    j.key("hits").value(f.prior.prior_hits);
-    j.key("misses").value(f.prior.prior_misses);
-    j.key("mean_narrowed_width_px").value(f.prior.mean_narrowed_width_px);
-    j.endObject();
-    j.key("rectification").beginObject();
-    j.key("method").value(f.quality.method);
-    j.key("measured").value(f.quality.valid);
-    if (f.quality.valid) {
-      j.key("median_offset_px").value(f.quality.median_offset_px);
-      j.key("p90_offset_px").value(f.quality.p90_offset_px);
-      j.key("num_matches").value(f.quality.num_matches);
-      j.key("measured_on_frame").value(f.quality.frame_index);
-      if (f.quality.row_offset_matches > 0) {
-        // the fitted offset plane c0 + c1 x + c2 y (px) and its matches (rectify.row_correction)
-        j.key("row_offset_px").beginArray();
-        for (int i = 0; i < 3; ++i) j.value(f.quality.row_offset[i]);
-        j.endArray();
-        j.key("row_offset_matches").value(f.quality.row_offset_matches);
-      }
-      j.key("warning").value(f.quality.warning);
-    }
-    if (f.quality.misaligned) j.key("misaligned").value(true);
-    if (!f.quality.message.empty()) j.key("message").value(f.quality.message);
-    j.endObject();
-    j.endObject();
-  }
+  for (const FrameRecord& f : frames) writeFrame(j, f, p);
   j.endArray();
-
   j.key("params").beginObject();
   for (const endo_stereo::ParamInfo& info : endo_stereo::listPipelineParams(p)) {
     j.key(info.key).value(info.value);
@@ -647,13 +672,8 @@ int process(const Options& o) {
   checkFileNames(o, sequence);
   const std::unique_ptr<endo_stereo::Pipeline> pipeline = makePipeline(params, o.calib);
 
-  endo_stereo::tools::FrameSourceSettings settings;
-  settings.left = o.left;
-  settings.right = o.right;
-  settings.has_first = o.has_first;
-  settings.first = o.first;
-  settings.count = o.count;
-  settings.fps = o.fps;
+  const endo_stereo::tools::FrameSourceSettings settings =
+      endo_stereo::tools::frameSourceSettings(o);
   const std::unique_ptr<endo_stereo::tools::FrameSource> source =
       endo_stereo::tools::makeFileFrameSource(settings);
   if (source->size() == 0) throw InputError{"no frame found: " + source->emptyReason()};
@@ -684,25 +704,9 @@ int process(const Options& o) {
   return failed ? kExitInput : kExitOk;
 }
 
-int run(int argc, char** argv) {
-  try {
-    return process(parseArgs(argc, argv));
-  } catch (const UsageError& e) {
-    std::cerr << "endo_stereo_cli: " << e.what() << "\n";
-    return kExitUsage;
-  } catch (const InputError& e) {
-    std::cerr << "endo_stereo_cli: " << e.message << "\n";
-    return kExitInput;
-  }
-}
-
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const std::exception& ex) {
-    std::cerr << "endo_stereo_cli: unexpected error: " << ex.what() << "\n";
-    return kExitInput;
-  }
+  return endo_stereo::tools::runTool("endo_stereo_cli",
+                                     [&] { return process(parseArgs(argc, argv)); });
 }

@@ -46,16 +46,16 @@ using endo_stereo::tools::loadAverage;
 
 using endo_stereo::tools::Frame;
 using endo_stereo::tools::FrameSource;
+using endo_stereo::tools::InputError;
 using endo_stereo::tools::isPattern;
 using endo_stereo::tools::JsonWriter;
-using endo_stereo::tools::kExitUsage;
+using endo_stereo::tools::kExitInput;
 using endo_stereo::tools::splitList;
 using endo_stereo::tools::UsageError;
 using endo_stereo::tools::validPattern;
 using Clock = std::chrono::steady_clock;
 
 constexpr int kExitOk = 0;
-constexpr int kExitInput = 1;
 
 const char* kUsage =
     R"(endo_stereo_evaluate - ours beside OpenCV BM and SGBM on a recording without ground truth
@@ -124,25 +124,32 @@ preparation, search, depth-edge filter and post-filters, the rest (the call's wa
 of these), the total (the call's wall time).
 )";
 
-struct Options {
-  std::string left, right, bag, ns = "/endoscope";
-  bool has_first = false;
-  int first = 0, count = -1;
-  double fps = 25.0;
+using endo_stereo::tools::ArgReader;
+
+// --min-disparity and --max-disparity are >= -100000 (a smaller one is a usage error at once).
+endo_stereo::tools::SharedRanges sharedRanges() {
+  endo_stereo::tools::SharedRanges r;
+  r.disparity_min = -100000;
+  return r;
+}
+
+// The shared flags (tool_args.hpp) this tool takes, and its own.
+struct Options : endo_stereo::tools::SharedOptions {
+  Options()
+      : SharedOptions(endo_stereo::tools::kFlagLeftRight | endo_stereo::tools::kFlagFirst |
+                          endo_stereo::tools::kFlagCount | endo_stereo::tools::kFlagFps |
+                          endo_stereo::tools::kFlagBag | endo_stereo::tools::kFlagParams |
+                          endo_stereo::tools::kFlagDisparityRange |
+                          endo_stereo::tools::kFlagThreads | endo_stereo::tools::kFlagOutDir |
+                          endo_stereo::tools::kFlagQuiet,
+                      sharedRanges()) {}
   cv::Size crop;
   int repeat = 0, pan = 0, pan_radius = 24, pan_period = 75;
-  std::string params_file, calib;
-  std::vector<std::string> overrides;
-  bool has_min = false, has_max = false;
-  int min_disparity = 0, max_disparity = 0;
-  bool has_threads = false;
-  int threads = 0;
   std::vector<std::string> methods = {"ours", "ours-no-priors", "bm", "sgbm"};
   double jump_px = 2.0;
   int flicker_window = 17;
   int window = 10, skip_timing = 2, picture_frame = -1;
-  std::string label, out_dir, json;
-  bool quiet = false;
+  std::string label, json;
 };
 
 // WxH, each side >= 16.
@@ -167,82 +174,55 @@ std::vector<std::string> parseMethods(const std::string& v) {
   return methods;
 }
 
-Options parseArgs(int argc, char** argv) {
-  Options o;
-  endo_stereo::tools::ArgReader args(argc, argv);
-  while (args.next()) {
-    if (args.is("--help") || args.is("-h")) {
-      std::cout << kUsage;
-      std::exit(kExitOk);
-    } else if (args.is("--left")) {
-      o.left = args.text();
-    } else if (args.is("--right")) {
-      o.right = args.text();
-    } else if (args.is("--bag")) {
-      o.bag = args.text();
-    } else if (args.is("--namespace")) {
-      o.ns = args.text();
-      if (!o.ns.empty() && o.ns.back() == '/') o.ns.pop_back();
-    } else if (args.is("--first")) {
-      o.first = args.integer(0);
-      o.has_first = true;
-    } else if (args.is("--count")) {
-      o.count = args.integer(1);
-    } else if (args.is("--fps")) {
-      o.fps = args.positive();
-    } else if (args.is("--crop")) {
-      o.crop = parseCrop(args.text());
-    } else if (args.is("--repeat")) {
-      o.repeat = args.integer(1);
-    } else if (args.is("--pan")) {
-      o.pan = args.integer(1);
-    } else if (args.is("--pan-radius")) {
-      o.pan_radius = args.integer(0);
-    } else if (args.is("--pan-period")) {
-      o.pan_period = args.integer(2);
-    } else if (args.is("--params")) {
-      o.params_file = args.text();
-    } else if (args.is("--set")) {
-      o.overrides.push_back(args.text());
-    } else if (args.is("--calib")) {
-      o.calib = args.text();
-    } else if (args.is("--threads")) {
-      o.threads = args.integer(0);
-      o.has_threads = true;
-    } else if (args.is("--min-disparity")) {
-      o.min_disparity = args.integer(-100000);
-      o.has_min = true;
-    } else if (args.is("--max-disparity")) {
-      o.max_disparity = args.integer(-100000);
-      o.has_max = true;
-    } else if (args.is("--methods")) {
-      o.methods = parseMethods(args.text());
-    } else if (args.is("--jump-px")) {
-      o.jump_px = args.positive();
-    } else if (args.is("--flicker-window")) {
-      o.flicker_window = args.integer(3);
-      if (o.flicker_window % 2 == 0) {
-        throw UsageError("--flicker-window: expected an odd number, got " +
-                         std::to_string(o.flicker_window));
-      }
-    } else if (args.is("--window")) {
-      o.window = args.integer(1);
-    } else if (args.is("--skip-timing")) {
-      o.skip_timing = args.integer(0);
-    } else if (args.is("--picture-frame")) {
-      o.picture_frame = args.integer(0);
-    } else if (args.is("--label")) {
-      o.label = args.text();
-    } else if (args.is("--out")) {
-      o.out_dir = args.text();
-    } else if (args.is("--json")) {
-      o.json = args.text();
-    } else if (args.is("--quiet")) {
-      o.quiet = true;
-    } else {
-      args.unknown();
-    }
+// How a single pair becomes frames: --crop, --repeat, --pan, --pan-radius, --pan-period.
+bool readFramingOption(ArgReader& args, Options& o) {
+  if (args.is("--crop")) {
+    o.crop = parseCrop(args.text());
+  } else if (args.is("--repeat")) {
+    o.repeat = args.integer(1);
+  } else if (args.is("--pan")) {
+    o.pan = args.integer(1);
+  } else if (args.is("--pan-radius")) {
+    o.pan_radius = args.integer(0);
+  } else if (args.is("--pan-period")) {
+    o.pan_period = args.integer(2);
+  } else {
+    return false;
   }
+  return true;
+}
+
+// --methods, --jump-px, --flicker-window, --window, --skip-timing, --picture-frame, --label,
+// --json.
+bool readEvaluationOption(ArgReader& args, Options& o) {
+  if (args.is("--methods")) {
+    o.methods = parseMethods(args.text());
+  } else if (args.is("--jump-px")) {
+    o.jump_px = args.positive();
+  } else if (args.is("--flicker-window")) {
+    o.flicker_window = args.integer(3);
+    if (o.flicker_window % 2 == 0) {
+      throw UsageError("--flicker-window: expected an odd number, got " +
+                       std::to_string(o.flicker_window));
+    }
+  } else if (args.is("--window")) {
+    o.window = args.integer(1);
+  } else if (args.is("--skip-timing")) {
+    o.skip_timing = args.integer(0);
+  } else if (args.is("--picture-frame")) {
+    o.picture_frame = args.integer(0);
+  } else if (args.is("--label")) {
+    o.label = args.text();
+  } else if (args.is("--json")) {
+    o.json = args.text();
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// The flags that go together: one input, the search range, the framing of a single pair.
+void checkOptions(const Options& o) {
   const bool files = !o.left.empty() || !o.right.empty();
   if (files == !o.bag.empty()) throw UsageError("give either --left and --right, or --bag");
   if (files && (o.left.empty() || o.right.empty())) {
@@ -262,6 +242,15 @@ Options parseArgs(int argc, char** argv) {
   if (!o.bag.empty() && !o.calib.empty()) {
     throw UsageError("--calib is for image files (a bag brings its camera_info)");
   }
+}
+
+Options parseArgs(int argc, char** argv) {
+  Options o;
+  endo_stereo::tools::readArguments(argc, argv, kUsage, o, [&o](ArgReader& args) {
+    return readFramingOption(args, o) || readEvaluationOption(args, o);
+  });
+  if (!o.ns.empty() && o.ns.back() == '/') o.ns.pop_back();
+  checkOptions(o);
   return o;
 }
 
@@ -572,40 +561,34 @@ bool writePictures(const Options& o, const std::vector<std::unique_ptr<Stream>>&
   return true;
 }
 
-int run(int argc, char** argv) {
-  Options o;
-  try {
-    o = parseArgs(argc, argv);
-  } catch (const UsageError& e) {
-    std::cerr << "endo_stereo_evaluate: " << e.what() << "\n";
-    return kExitUsage;
-  }
-  if (!o.left.empty()) {
-    const bool seq = isPattern(o.left) || isPattern(o.right);
-    if (seq && (!validPattern(o.left) || !validPattern(o.right))) {
-      std::cerr << "endo_stereo_evaluate: a sequence needs --left and --right patterns with one "
-                   "integer conversion each, e.g. left/%04d.png\n";
-      return kExitUsage;
-    }
-    if (seq && (o.repeat > 0 || o.pan > 0)) {
-      std::cerr << "endo_stereo_evaluate: --repeat and --pan take a single pair, not a pattern\n";
-      return kExitUsage;
-    }
-    if (!seq && (o.has_first || o.count > 0)) {
-      std::cerr << "endo_stereo_evaluate: --first/--count need --left/--right patterns\n";
-      return kExitUsage;
-    }
-  }
+// --- steps of a run --------------------------------------------------------------------------
 
-  // Our pipeline's parameters: as endo_stereo_cli (built-in defaults, input already rectified).
+// Image files: a sequence needs valid patterns and takes neither --repeat nor --pan; a single pair
+// takes neither --first nor --count.
+void checkImageFiles(const Options& o) {
+  if (o.left.empty()) return;
+  const bool seq = isPattern(o.left) || isPattern(o.right);
+  if (seq && (!validPattern(o.left) || !validPattern(o.right))) {
+    throw UsageError(
+        "a sequence needs --left and --right patterns with one integer conversion each, e.g. "
+        "left/%04d.png");
+  }
+  if (seq && (o.repeat > 0 || o.pan > 0)) {
+    throw UsageError("--repeat and --pan take a single pair, not a pattern");
+  }
+  if (!seq && (o.has_first || o.count > 0)) {
+    throw UsageError("--first/--count need --left/--right patterns");
+  }
+}
+
+// Our pipeline's parameters: as endo_stereo_cli (built-in defaults, input already rectified, then
+// the preset and the overrides), with the search range of every method and the fused output.
+endo_stereo::PipelineParams makeParams(const Options& o) {
   endo_stereo::PipelineParams params;
   params.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
-  std::string err =
+  const std::string err =
       endo_stereo::tools::applyPresetAndOverrides(o.params_file, o.overrides, params);
-  if (!err.empty()) {
-    std::cerr << "endo_stereo_evaluate: " << err << "\n";
-    return kExitUsage;
-  }
+  if (!err.empty()) throw UsageError(err);
   params.matcher.min_disparity = o.min_disparity;
   params.matcher.max_disparity = o.max_disparity;
   if (o.has_threads) params.matcher.num_threads = o.threads;
@@ -613,83 +596,93 @@ int run(int argc, char** argv) {
   params.output.fused = true;
   params.output.coverage = false;  // coverage is measured here, the same way for every method
   if (!o.calib.empty()) params.rectify.mode = endo_stereo::RectifyMode::kCalibrated;
-  err = params.validate();
-  if (!err.empty()) {
-    std::cerr << "endo_stereo_evaluate: bad parameters: " << err << "\n";
-    return kExitUsage;
-  }
-  if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
+  const std::string bad = params.validate();
+  if (!bad.empty()) throw UsageError("bad parameters: " + bad);
+  return params;
+}
 
-  endo_stereo::tools::FrameSourceSettings fs;
-  fs.left = o.left;
-  fs.right = o.right;
-  fs.has_first = o.has_first;
-  fs.first = o.first;
-  fs.count = o.count;
-  fs.fps = o.fps;
+endo_stereo::tools::FrameSourceSettings sourceSettings(const Options& o) {
+  endo_stereo::tools::FrameSourceSettings fs = endo_stereo::tools::frameSourceSettings(o);
   fs.crop = o.crop;
   fs.repeat = o.repeat;
   fs.pan = o.pan;
   fs.pan_radius = o.pan_radius;
   fs.pan_period = o.pan_period;
-  fs.bag_path = o.bag;
-  fs.ns = o.ns;
+  return fs;
+}
+
+// The frames of @p settings (which must outlive the source): image files or a bag, at least one.
+std::unique_ptr<FrameSource> openSource(const endo_stereo::tools::FrameSourceSettings& settings) {
   std::unique_ptr<FrameSource> source;
   try {
-    source = endo_stereo::tools::makeFrameSource(fs);
+    source = endo_stereo::tools::makeFrameSource(settings);
   } catch (const std::exception& ex) {
-    std::cerr << "endo_stereo_evaluate: cannot read the bag: " << ex.what() << "\n";
-    return kExitInput;
+    throw InputError{std::string("cannot read the bag: ") + ex.what()};
   }
-  if (source->size() == 0) {
-    std::cerr << "endo_stereo_evaluate: no frame found (" << source->describe() << ")\n";
-    return kExitInput;
-  }
-  endo_stereo::StereoCalibration calibration;
-  bool calibrated = false;
+  if (source->size() == 0) throw InputError{"no frame found (" + source->describe() + ")"};
+  return source;
+}
+
+// The calibration our pipeline rectifies with: --calib's, else a bag's camera_info (then
+// rectify.mode becomes calibrated). False when there is none.
+bool findCalibration(const Options& o, const FrameSource& source,
+                     endo_stereo::StereoCalibration* calibration,
+                     endo_stereo::PipelineParams* params) {
   if (!o.calib.empty()) {
-    if (!endo_stereo::loadStereoCalibration(o.calib, calibration, &err)) {
-      std::cerr << "endo_stereo_evaluate: --calib: " << err << "\n";
-      return kExitInput;
+    std::string err;
+    if (!endo_stereo::loadStereoCalibration(o.calib, *calibration, &err)) {
+      throw InputError{"--calib: " + err};
     }
-    calibrated = true;
-  } else if (source->calibration(&calibration)) {
-    params.rectify.mode = endo_stereo::RectifyMode::kCalibrated;
-    calibrated = true;
+    return true;
   }
+  if (!source.calibration(calibration)) return false;
+  params->rectify.mode = endo_stereo::RectifyMode::kCalibrated;
+  return true;
+}
 
-  auto has = [&](const std::string& m) {
-    return std::find(o.methods.begin(), o.methods.end(), m) != o.methods.end();
-  };
-  const bool any_ours = has("ours") || has("ours-no-priors");
-  if (calibrated && !any_ours) {
-    std::cerr << "endo_stereo_evaluate: rectification runs in our pipeline: with a calibration, "
-                 "--methods needs ours or ours-no-priors\n";
-    return kExitUsage;
-  }
+/// Our pipeline in one setting (priors or none), its last output and its two streams.
+struct Ours {
+  std::unique_ptr<endo_stereo::Pipeline> pipeline;
+  endo_stereo::PipelineOutput out;
+  Stream* measured = nullptr;
+  Stream* fused = nullptr;
+};
 
-  // The methods, in the order of the table.
+/// The methods --methods names and their streams, in the order of the table.
+struct Methods {
+  std::vector<std::unique_ptr<Stream>> streams;
+  std::vector<Ours> ours;
+  bool any_ours = false;
+  int num_disp = 0;  ///< OpenCV's number of disparities
+  cv::Ptr<cv::StereoBM> bm;
+  cv::Ptr<cv::StereoSGBM> sgbm;
+  Stream* bm_stream = nullptr;
+  Stream* sgbm_stream = nullptr;
+};
+
+bool hasMethod(const Options& o, const std::string& m) {
+  return std::find(o.methods.begin(), o.methods.end(), m) != o.methods.end();
+}
+
+Stream* addStream(Methods& m, const Options& o, const std::string& key, const std::string& name,
+                  bool timed) {
   endo_stereo::SequenceMetricsParams mp;
   mp.jump_px = o.jump_px;
   mp.flicker_window_px = o.flicker_window;
   mp.window_frames = o.window;
-  std::vector<std::unique_ptr<Stream>> streams;
-  auto addStream = [&](const std::string& key, const std::string& name, bool timed) {
-    streams.push_back(std::make_unique<Stream>(mp));
-    streams.back()->key = key;
-    streams.back()->name = name;
-    streams.back()->timed = timed;
-    return streams.back().get();
-  };
-  struct Ours {
-    std::unique_ptr<endo_stereo::Pipeline> pipeline;
-    endo_stereo::PipelineOutput out;
-    Stream* measured = nullptr;
-    Stream* fused = nullptr;
-  };
-  std::vector<Ours> ours;
+  m.streams.push_back(std::make_unique<Stream>(mp));
+  m.streams.back()->key = key;
+  m.streams.back()->name = name;
+  m.streams.back()->timed = timed;
+  return m.streams.back().get();
+}
+
+// Our pipeline with priors ("ours") and without ("ours-no-priors"), as --methods names them, each
+// with a measured and a fused stream; @p calibration (null: none) set on each.
+void addOurs(Methods& m, const Options& o, const endo_stereo::PipelineParams& params,
+             const endo_stereo::StereoCalibration* calibration) {
   for (const std::string key : {"ours", "ours-no-priors"}) {
-    if (!has(key)) continue;
+    if (!hasMethod(o, key)) continue;
     endo_stereo::PipelineParams p = params;
     const bool priors = key == std::string("ours");
     p.temporal.enabled = priors && params.temporal.enabled;
@@ -697,163 +690,183 @@ int run(int argc, char** argv) {
     try {
       x.pipeline = std::make_unique<endo_stereo::Pipeline>(p);
     } catch (const std::exception& ex) {
-      std::cerr << "endo_stereo_evaluate: bad parameters: " << ex.what() << "\n";
-      return kExitUsage;
+      throw UsageError(std::string("bad parameters: ") + ex.what());
     }
-    if (calibrated) {
-      err = x.pipeline->setCalibration(calibration);
-      if (!err.empty()) {
-        std::cerr << "endo_stereo_evaluate: calibration: " << err << "\n";
-        return kExitInput;
-      }
+    if (calibration) {
+      const std::string err = x.pipeline->setCalibration(*calibration);
+      if (!err.empty()) throw InputError{"calibration: " + err};
     }
     const std::string base = priors ? "ours, priors" : "ours, no priors";
-    x.measured = addStream(key, base, true);
-    x.fused = addStream(key + "-fused", base + ", fused output", false);
-    ours.push_back(std::move(x));
+    x.measured = addStream(m, o, key, base, true);
+    x.fused = addStream(m, o, key + "-fused", base + ", fused output", false);
+    m.ours.push_back(std::move(x));
   }
-  const int num_disp = endo_stereo::referenceNumDisparities(o.min_disparity, o.max_disparity);
-  cv::Ptr<cv::StereoBM> bm;
-  cv::Ptr<cv::StereoSGBM> sgbm;
-  Stream* bm_stream = nullptr;
-  Stream* sgbm_stream = nullptr;
-  if (has("bm")) {
-    bm = endo_stereo::makeReferenceBm(o.min_disparity, num_disp);
-    bm_stream = addStream("bm", "OpenCV BM", true);
-  }
-  if (has("sgbm")) {
-    sgbm = endo_stereo::makeReferenceSgbm(o.min_disparity, num_disp);
-    sgbm_stream = addStream("sgbm", "OpenCV SGBM", true);
-  }
+}
 
-  const int total = source->size();
-  const int picture = o.picture_frame >= 0 ? std::min(o.picture_frame, std::max(0, total - 1))
-                                           : std::max(0, total - 1) / 2;
+// OpenCV's StereoBM and StereoSGBM, as --methods names them, over the same range.
+void addOpenCv(Methods& m, const Options& o) {
+  m.num_disp = endo_stereo::referenceNumDisparities(o.min_disparity, o.max_disparity);
+  if (hasMethod(o, "bm")) {
+    m.bm = endo_stereo::makeReferenceBm(o.min_disparity, m.num_disp);
+    m.bm_stream = addStream(m, o, "bm", "OpenCV BM", true);
+  }
+  if (hasMethod(o, "sgbm")) {
+    m.sgbm = endo_stereo::makeReferenceSgbm(o.min_disparity, m.num_disp);
+    m.sgbm_stream = addStream(m, o, "sgbm", "OpenCV SGBM", true);
+  }
+}
+
+Methods makeMethods(const Options& o, const endo_stereo::PipelineParams& params,
+                    const endo_stereo::StereoCalibration* calibration) {
+  Methods m;
+  m.any_ours = hasMethod(o, "ours") || hasMethod(o, "ours-no-priors");
+  if (calibration && !m.any_ours) {
+    throw UsageError(
+        "rectification runs in our pipeline: with a calibration, --methods needs ours or "
+        "ours-no-priors");
+  }
+  addOurs(m, o, params, calibration);
+  addOpenCv(m, o);
+  return m;
+}
+
+// Keeps the picture frame's disparity, jump map and flicker map of @p s.
+void keepPicture(Stream& s, const cv::Mat& disparity) {
+  s.picture_disparity = disparity;
+  s.picture_jumps = s.metrics.lastJumpMap().clone();
+  s.picture_flicker = s.metrics.lastFlickerMap().clone();
+}
+
+// Every setting of our pipeline on @p frame, timed (wall, CPU, stages), into its streams;
+// @p left_gray and @p right_gray become the first one's rectified gray pair. False when a pipeline
+// fails on the frame (said on stderr, @p err set).
+bool runOurs(Methods& m, const Frame& frame, bool picture, cv::Mat* left_gray, cv::Mat* right_gray,
+             std::string* err) {
+  for (Ours& x : m.ours) {
+    const double cpu = processCpuMs();
+    const auto t0 = Clock::now();
+    const bool processed = x.pipeline->process(frame.input, x.out, err);
+    const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
+    if (!processed) {
+      std::cerr << "endo_stereo_evaluate: frame " << frame.name << ": " << *err << "\n";
+      return false;
+    }
+    x.measured->ms.push_back(ms);
+    x.measured->cpu_ms.push_back(processCpuMs() - cpu);
+    const std::array<double, kNumStages> stages = stageTimes(x.out, ms);
+    for (int k = 0; k < kNumStages; ++k) x.measured->stage_ms[size_t(k)].push_back(stages[k]);
+    x.measured->metrics.addFrame(x.out.match.disparity);
+    x.fused->metrics.addFrame(x.out.fused_disparity);
+    if (left_gray->empty()) {
+      *left_gray = x.out.left_rect_gray;
+      *right_gray = x.out.right_rect_gray;
+    }
+    if (picture) {
+      keepPicture(*x.measured, x.out.match.disparity.clone());
+      keepPicture(*x.fused, x.out.fused_disparity.clone());
+    }
+  }
+  return true;
+}
+
+// An input image in 8-bit gray, as the pipeline converts it.
+cv::Mat grayOf(const cv::Mat& m, const std::string& encoding) {
+  cv::Mat g;
+  if (encoding == "mono8") return m;
+  if (encoding == "mono16") {
+    m.convertTo(g, CV_8U, 1.0 / 257.0);
+  } else if (encoding == "bgra8") {
+    cv::cvtColor(m, g, cv::COLOR_BGRA2GRAY);
+  } else {
+    cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
+  }
+  return g;
+}
+
+// OpenCV's matchers on the rectified gray pair, timed (wall, CPU), into their streams.
+void runOpenCv(Methods& m, const Options& o, const cv::Mat& left_gray, const cv::Mat& right_gray,
+               bool picture) {
+  for (auto& [matcher, stream] :
+       {std::make_pair(cv::Ptr<cv::StereoMatcher>(m.bm), m.bm_stream),
+        std::make_pair(cv::Ptr<cv::StereoMatcher>(m.sgbm), m.sgbm_stream)}) {
+    if (!matcher) continue;
+    cv::Mat fixed;
+    const double cpu = processCpuMs();
+    const auto t0 = Clock::now();
+    matcher->compute(left_gray, right_gray, fixed);
+    const cv::Mat d = endo_stereo::referenceDisparityToFloat(fixed, o.min_disparity);
+    stream->ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
+    stream->cpu_ms.push_back(processCpuMs() - cpu);
+    stream->metrics.addFrame(d);
+    if (picture) keepPicture(*stream, d);
+  }
+}
+
+// A frame's progress line: per timed stream its density and time.
+void printProgress(const Methods& m, int n, int total, const std::string& name) {
+  std::fprintf(stderr, "frame %d/%d (%s):", n + 1, total, name.c_str());
+  for (const auto& s : m.streams) {
+    if (s->timed) {
+      std::fprintf(stderr, " %s %.1f%% %.0f ms;", s->key.c_str(),
+                   100.0 * s->metrics.densities().back(), s->ms.back());
+    }
+  }
+  std::fprintf(stderr, "\n");
+}
+
+// Every method on every frame of @p source. Sets @p info's frames, failed, size, picture and
+// load_start; returns the picture frame's left image (ours' rectified colour image when there is
+// one). @p err: a frame's error, the source's error at the end.
+cv::Mat runFrames(const Options& o, FrameSource& source, Methods& m, RunInfo* info,
+                  std::string* err) {
+  const int total = source.size();
+  info->picture = o.picture_frame >= 0 ? std::min(o.picture_frame, std::max(0, total - 1))
+                                       : std::max(0, total - 1) / 2;
+  info->load_start = loadAverage();
   cv::Mat picture_left;
-  cv::Size frame_size;
-  int n = 0, failed = 0;
   Frame frame;
-  const std::string load_start = loadAverage();
-  while (true) {
-    if (!source->next(frame, &err)) {
-      if (!err.empty()) {
-        std::cerr << "endo_stereo_evaluate: " << err << "\n";
-        return kExitInput;
-      }
-      break;
-    }
+  while (source.next(frame, err)) {
+    const bool picture = info->frames == info->picture;
     cv::Mat left_gray, right_gray;
-    bool ok = true;
-    for (Ours& x : ours) {
-      const double cpu = processCpuMs();
-      const auto t0 = Clock::now();
-      const bool processed = x.pipeline->process(frame.input, x.out, &err);
-      const double ms = std::chrono::duration<double, std::milli>(Clock::now() - t0).count();
-      if (!processed) {
-        std::cerr << "endo_stereo_evaluate: frame " << frame.name << ": " << err << "\n";
-        ok = false;
-        break;
-      }
-      x.measured->ms.push_back(ms);
-      x.measured->cpu_ms.push_back(processCpuMs() - cpu);
-      const std::array<double, kNumStages> stages = stageTimes(x.out, ms);
-      for (int k = 0; k < kNumStages; ++k) x.measured->stage_ms[size_t(k)].push_back(stages[k]);
-      x.measured->metrics.addFrame(x.out.match.disparity);
-      x.fused->metrics.addFrame(x.out.fused_disparity);
-      if (left_gray.empty()) {
-        left_gray = x.out.left_rect_gray;
-        right_gray = x.out.right_rect_gray;
-      }
-      if (n == picture) {
-        x.measured->picture_disparity = x.out.match.disparity.clone();
-        x.measured->picture_jumps = x.measured->metrics.lastJumpMap().clone();
-        x.measured->picture_flicker = x.measured->metrics.lastFlickerMap().clone();
-        x.fused->picture_disparity = x.out.fused_disparity.clone();
-        x.fused->picture_jumps = x.fused->metrics.lastJumpMap().clone();
-        x.fused->picture_flicker = x.fused->metrics.lastFlickerMap().clone();
-      }
-    }
-    if (!ok) {
-      ++failed;
+    if (!runOurs(m, frame, picture, &left_gray, &right_gray, err)) {
+      ++info->failed;
       continue;
     }
     if (left_gray.empty()) {  // no pipeline ran: the input is rectified, convert as it would
-      auto gray = [](const cv::Mat& m, const std::string& enc) {
-        cv::Mat g;
-        if (enc == "mono8") return m;
-        if (enc == "mono16") {
-          m.convertTo(g, CV_8U, 1.0 / 257.0);
-        } else if (enc == "bgra8") {
-          cv::cvtColor(m, g, cv::COLOR_BGRA2GRAY);
-        } else {
-          cv::cvtColor(m, g, cv::COLOR_BGR2GRAY);
-        }
-        return g;
-      };
-      left_gray = gray(frame.input.left, frame.input.left_encoding);
-      right_gray = gray(frame.input.right, frame.input.right_encoding);
+      left_gray = grayOf(frame.input.left, frame.input.left_encoding);
+      right_gray = grayOf(frame.input.right, frame.input.right_encoding);
     }
-    frame_size = left_gray.size();
-    for (auto& [matcher, stream] :
-         {std::make_pair(cv::Ptr<cv::StereoMatcher>(bm), bm_stream),
-          std::make_pair(cv::Ptr<cv::StereoMatcher>(sgbm), sgbm_stream)}) {
-      if (!matcher) continue;
-      cv::Mat fixed;
-      const double cpu = processCpuMs();
-      const auto t0 = Clock::now();
-      matcher->compute(left_gray, right_gray, fixed);
-      const cv::Mat d = endo_stereo::referenceDisparityToFloat(fixed, o.min_disparity);
-      stream->ms.push_back(std::chrono::duration<double, std::milli>(Clock::now() - t0).count());
-      stream->cpu_ms.push_back(processCpuMs() - cpu);
-      stream->metrics.addFrame(d);
-      if (n == picture) {
-        stream->picture_disparity = d;
-        stream->picture_jumps = stream->metrics.lastJumpMap().clone();
-        stream->picture_flicker = stream->metrics.lastFlickerMap().clone();
-      }
-    }
-    if (n == picture) {
-      picture_left = (ours.empty() || ours[0].out.left_rect_color.empty())
+    info->size = left_gray.size();
+    runOpenCv(m, o, left_gray, right_gray, picture);
+    if (picture) {
+      picture_left = (m.ours.empty() || m.ours[0].out.left_rect_color.empty())
                          ? toBgr(left_gray)
-                         : ours[0].out.left_rect_color.clone();
+                         : m.ours[0].out.left_rect_color.clone();
     }
-    if (!o.quiet) {
-      std::fprintf(stderr, "frame %d/%d (%s):", n + 1, total, frame.name.c_str());
-      for (const auto& s : streams) {
-        if (s->timed) {
-          std::fprintf(stderr, " %s %.1f%% %.0f ms;", s->key.c_str(),
-                       100.0 * s->metrics.densities().back(), s->ms.back());
-        }
-      }
-      std::fprintf(stderr, "\n");
-    }
-    ++n;
+    if (!o.quiet) printProgress(m, info->frames, total, frame.name);
+    ++info->frames;
   }
-  if (n == 0) {
-    std::cerr << "endo_stereo_evaluate: no frame could be processed\n";
-    return kExitInput;
-  }
+  return picture_left;
+}
 
-  // --- summary ---------------------------------------------------------------------------------
-  const double sgbm_ms = sgbm_stream ? timingMedian(sgbm_stream->ms, o.skip_timing) : std::nan("");
-  const std::string label = o.label.empty() ? source->describe() : o.label;
-  const int window = std::min(o.window, n);
-  std::printf("%s: %d frames %dx%d, disparities %d..%d (OpenCV: %d..%d)\n\n", label.c_str(), n,
-              frame_size.width, frame_size.height, o.min_disparity, o.max_disparity,
-              o.min_disparity, o.min_disparity + num_disp - 1);
+// The figures per method, one row each.
+void printMethodTable(const Options& o, const Methods& m, const RunInfo& r) {
+  std::printf("%s: %d frames %dx%d, disparities %d..%d (OpenCV: %d..%d)\n\n", r.label.c_str(),
+              r.frames, r.size.width, r.size.height, o.min_disparity, o.max_disparity,
+              o.min_disparity, o.min_disparity + r.num_disp - 1);
   std::printf(
       "| method | density median %% | density mean %% | jumps > %g px %% | motion-compensated "
       "flicker > %g px %% | central covered every %d frames %% | central never %% | ms/frame "
       "median | time / SGBM | CPU ms median |\n"
       "|---|---:|---:|---:|---:|---:|---:|---:|---:|---:|\n",
-      o.jump_px, o.jump_px, window);
-  for (const auto& s : streams) {
+      o.jump_px, o.jump_px, r.window);
+  for (const auto& s : m.streams) {
     const endo_stereo::SequenceSummary sum = s->metrics.summary();
     char timing[128] = "| - | - | - |";
     if (s->timed) {
       const double ms = timingMedian(s->ms, o.skip_timing);
       std::snprintf(timing, sizeof(timing), "| %.1f | %s | %.1f |", ms,
-                    std::isfinite(sgbm_ms) ? cv::format("%.2f", ms / sgbm_ms).c_str() : "-",
+                    std::isfinite(r.sgbm_ms) ? cv::format("%.2f", ms / r.sgbm_ms).c_str() : "-",
                     timingMedian(s->cpu_ms, o.skip_timing));
     }
     std::printf("| %s | %.1f | %.1f | %.2f | %.2f | %.1f | %.1f %s\n", s->name.c_str(),
@@ -865,67 +878,83 @@ int run(int argc, char** argv) {
       "\nTimes: wall time per frame, median over frames %d..%d; ours is the whole "
       "Pipeline::process "
       "call (threads: %d), OpenCV's the compute() call on the same rectified gray pair.%s\n",
-      std::min(o.skip_timing, n - 1) + 1, n, cv::getNumThreads(),
-      failed ? cv::format(" %d frame(s) failed.", failed).c_str() : "");
-  if (!ours.empty()) {
-    std::printf("\n| stage, ms (median, threads: %d) |", cv::getNumThreads());
-    for (const Ours& x : ours) std::printf(" %s |", x.measured->name.c_str());
-    std::printf("\n|---|");
-    for (size_t i = 0; i < ours.size(); ++i) std::printf("---:|");
-    std::printf("\n");
-    for (int k = 0; k < kNumStages; ++k) {
-      std::printf("| %s |", kStageNames[k].label);
-      for (const Ours& x : ours) {
-        std::printf(" %.2f |", timingMedian(x.measured->stage_ms[size_t(k)], o.skip_timing));
-      }
-      std::printf("\n");
-    }
-    std::printf(
-        "\nStages: the median of each over the same frames as the times above; the medians need "
-        "not add up to the total exactly.\n");
-  }
-  std::fflush(stdout);
+      std::min(o.skip_timing, r.frames - 1) + 1, r.frames, cv::getNumThreads(),
+      r.failed ? cv::format(" %d frame(s) failed.", r.failed).c_str() : "");
+}
 
-  // --- JSON ------------------------------------------------------------------------------------
+// Ours' time per stage, a column per setting.
+void printStageTable(const Options& o, const Methods& m) {
+  std::printf("\n| stage, ms (median, threads: %d) |", cv::getNumThreads());
+  for (const Ours& x : m.ours) std::printf(" %s |", x.measured->name.c_str());
+  std::printf("\n|---|");
+  for (size_t i = 0; i < m.ours.size(); ++i) std::printf("---:|");
+  std::printf("\n");
+  for (int k = 0; k < kNumStages; ++k) {
+    std::printf("| %s |", kStageNames[k].label);
+    for (const Ours& x : m.ours) {
+      std::printf(" %.2f |", timingMedian(x.measured->stage_ms[size_t(k)], o.skip_timing));
+    }
+    std::printf("\n");
+  }
+  std::printf(
+      "\nStages: the median of each over the same frames as the times above; the medians need "
+      "not add up to the total exactly.\n");
+}
+
+// The JSON (--json, else DIR/evaluation.json) and the pictures in DIR.
+void writeOutputs(const Options& o, const RunInfo& info, const Methods& m,
+                  const endo_stereo::PipelineParams& params, const cv::Mat& picture_left) {
   std::string json_path = o.json;
   if (json_path.empty() && !o.out_dir.empty()) json_path = o.out_dir + "/evaluation.json";
   if (!o.out_dir.empty()) ::mkdir(o.out_dir.c_str(), 0755);
   if (!json_path.empty()) {
-    RunInfo info;
-    info.label = label;
-    info.input = source->describe();
-    info.frames = n;
-    info.failed = failed;
-    info.size = frame_size;
-    info.num_disp = num_disp;
-    info.window = window;
-    info.picture = picture;
-    info.load_start = load_start;
-    info.sgbm_ms = sgbm_ms;
-    const std::string text = evaluationJson(o, info, streams, any_ours ? &params : nullptr);
+    const std::string text = evaluationJson(o, info, m.streams, m.any_ours ? &params : nullptr);
     std::ofstream f(json_path);
     f << text;
-    if (!f) {
-      std::cerr << "endo_stereo_evaluate: cannot write '" << json_path << "'\n";
-      return kExitInput;
-    }
+    if (!f) throw InputError{"cannot write '" + json_path + "'"};
   }
-
+  std::string err;
   if (!o.out_dir.empty() && !picture_left.empty() &&
-      !writePictures(o, streams, picture_left, picture, n, window, frame_size, &err)) {
-    std::cerr << "endo_stereo_evaluate: " << err << "\n";
-    return kExitInput;
+      !writePictures(o, m.streams, picture_left, info.picture, info.frames, info.window, info.size,
+                     &err)) {
+    throw InputError{err};
   }
-  return failed ? kExitInput : kExitOk;
+}
+
+// Checks, parameters, frames, methods; every frame through every method; the tables, the JSON,
+// the pictures.
+int evaluate(const Options& o) {
+  checkImageFiles(o);
+  endo_stereo::PipelineParams params = makeParams(o);
+  if (o.has_threads && o.threads > 0) cv::setNumThreads(o.threads);
+  const endo_stereo::tools::FrameSourceSettings settings = sourceSettings(o);
+  const std::unique_ptr<FrameSource> source = openSource(settings);
+  endo_stereo::StereoCalibration calibration;
+  const bool calibrated = findCalibration(o, *source, &calibration, &params);
+  Methods methods = makeMethods(o, params, calibrated ? &calibration : nullptr);
+
+  RunInfo info;
+  std::string err;
+  const cv::Mat picture_left = runFrames(o, *source, methods, &info, &err);
+  if (!err.empty()) throw InputError{err};
+  if (info.frames == 0) throw InputError{"no frame could be processed"};
+  info.sgbm_ms =
+      methods.sgbm_stream ? timingMedian(methods.sgbm_stream->ms, o.skip_timing) : std::nan("");
+  info.label = o.label.empty() ? source->describe() : o.label;
+  info.input = source->describe();
+  info.num_disp = methods.num_disp;
+  info.window = std::min(o.window, info.frames);
+
+  printMethodTable(o, methods, info);
+  if (!methods.ours.empty()) printStageTable(o, methods);
+  std::fflush(stdout);
+  writeOutputs(o, info, methods, params, picture_left);
+  return info.failed ? kExitInput : kExitOk;
 }
 
 }  // namespace
 
 int main(int argc, char** argv) {
-  try {
-    return run(argc, argv);
-  } catch (const std::exception& ex) {
-    std::cerr << "endo_stereo_evaluate: unexpected error: " << ex.what() << "\n";
-    return kExitInput;
-  }
+  return endo_stereo::tools::runTool("endo_stereo_evaluate",
+                                     [&] { return evaluate(parseArgs(argc, argv)); });
 }

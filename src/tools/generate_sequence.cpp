@@ -128,76 +128,110 @@ void fillImage(const cv::Mat& img, const std::string& encoding, int elem_bytes,
   }
 }
 
-struct Options {
+using endo_stereo::tools::ArgReader;
+
+// An output that cannot be written (kExitOutput); an empty message prints no line.
+struct OutputError {
+  std::string message;
+};
+
+// --first, --fps and --threads take any integer or number: parseArgs checks --first, the scene's
+// parameters --fps, and --threads goes to cv::setNumThreads as given.
+endo_stereo::tools::SharedRanges sharedRanges() {
+  endo_stereo::tools::SharedRanges r;
+  r.first_min = INT_MIN;
+  r.threads_min = INT_MIN;
+  r.fps_positive = false;
+  return r;
+}
+
+// The shared flags (tool_args.hpp) this tool takes (its fps is params.fps), and its own.
+struct Options : endo_stereo::tools::SharedOptions {
+  Options()
+      : SharedOptions(endo_stereo::tools::kFlagFirst | endo_stereo::tools::kFlagFps |
+                          endo_stereo::tools::kFlagThreads | endo_stereo::tools::kFlagBag |
+                          endo_stereo::tools::kFlagOutDir,
+                      sharedRanges()) {
+    fps = params.fps;
+  }
   endo_stereo::SurgicalSceneParams params;
-  std::string out_dir, bag_path, ns = "/endoscope", compression = "none";
-  int frames = 100, first = 0, threads = 0;
+  std::string compression = "none";
+  int frames = 100;
   double start_time = 1600000000.0;
   bool write_gt = true, write_images = true, bag_gt = false;
 };
 
+// The scene: --frames, --width, --height, --seed, --distorted, --instruments, --instrument-speed,
+// --textureless-instrument.
+bool readSceneOption(ArgReader& args, Options& o) {
+  endo_stereo::SurgicalSceneParams& params = o.params;
+  if (args.is("--frames")) {
+    o.frames = args.integer();
+  } else if (args.is("--width")) {
+    params.width = args.integer();
+  } else if (args.is("--height")) {
+    params.height = args.integer();
+  } else if (args.is("--seed")) {
+    // a 32-bit seed, negative values taken modulo 2^32
+    params.seed = uint64_t(uint32_t(args.integer64(INT32_MIN, UINT32_MAX)));
+  } else if (args.is("--distorted")) {
+    params.distorted = true;
+  } else if (args.is("--instruments")) {
+    params.instruments = args.integer();
+  } else if (args.is("--instrument-speed")) {
+    params.instrument_speed = args.number();
+  } else if (args.is("--textureless-instrument")) {
+    params.instrument_texture = 0.0;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// The camera's picture: --no-specular, --noise, --blur, --exposure, --interlaced.
+bool readImagingOption(ArgReader& args, Options& o) {
+  endo_stereo::SurgicalSceneParams& params = o.params;
+  if (args.is("--no-specular")) {
+    params.specular_strength = 0.0;
+  } else if (args.is("--noise")) {
+    params.noise_sigma = args.number();
+  } else if (args.is("--blur")) {
+    params.motion_blur_samples = args.integer();
+  } else if (args.is("--exposure")) {
+    params.exposure_s = args.number();
+  } else if (args.is("--interlaced")) {
+    params.interlaced = true;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// What is written: --no-gt, --no-images, --start-time, --bag-gt, --bag-compression.
+bool readOutputOption(ArgReader& args, Options& o) {
+  if (args.is("--no-gt")) {
+    o.write_gt = false;
+  } else if (args.is("--no-images")) {
+    o.write_images = false;
+  } else if (args.is("--start-time")) {
+    o.start_time = args.number();
+  } else if (args.is("--bag-gt")) {
+    o.bag_gt = true;
+  } else if (args.is("--bag-compression")) {
+    o.compression = args.text();
+  } else {
+    return false;
+  }
+  return true;
+}
+
 Options parseArgs(int argc, char** argv) {
   Options o;
-  endo_stereo::SurgicalSceneParams& params = o.params;
-  endo_stereo::tools::ArgReader args(argc, argv);
-  while (args.next()) {
-    if (args.is("-h") || args.is("--help")) {
-      std::cout << kUsage;
-      std::exit(kExitOk);
-    } else if (args.is("--out")) {
-      o.out_dir = args.text();
-    } else if (args.is("--frames")) {
-      o.frames = args.integer();
-    } else if (args.is("--first")) {
-      o.first = args.integer();
-    } else if (args.is("--width")) {
-      params.width = args.integer();
-    } else if (args.is("--height")) {
-      params.height = args.integer();
-    } else if (args.is("--seed")) {
-      // a 32-bit seed, negative values taken modulo 2^32
-      params.seed = uint64_t(uint32_t(args.integer64(INT32_MIN, UINT32_MAX)));
-    } else if (args.is("--fps")) {
-      params.fps = args.number();
-    } else if (args.is("--distorted")) {
-      params.distorted = true;
-    } else if (args.is("--instruments")) {
-      params.instruments = args.integer();
-    } else if (args.is("--instrument-speed")) {
-      params.instrument_speed = args.number();
-    } else if (args.is("--textureless-instrument")) {
-      params.instrument_texture = 0.0;
-    } else if (args.is("--no-specular")) {
-      params.specular_strength = 0.0;
-    } else if (args.is("--noise")) {
-      params.noise_sigma = args.number();
-    } else if (args.is("--blur")) {
-      params.motion_blur_samples = args.integer();
-    } else if (args.is("--exposure")) {
-      params.exposure_s = args.number();
-    } else if (args.is("--interlaced")) {
-      params.interlaced = true;
-    } else if (args.is("--no-gt")) {
-      o.write_gt = false;
-    } else if (args.is("--no-images")) {
-      o.write_images = false;
-    } else if (args.is("--threads")) {
-      o.threads = args.integer();
-    } else if (args.is("--bag")) {
-      o.bag_path = args.text();
-    } else if (args.is("--namespace")) {
-      o.ns = args.text();
-    } else if (args.is("--start-time")) {
-      o.start_time = args.number();
-    } else if (args.is("--bag-gt")) {
-      o.bag_gt = true;
-    } else if (args.is("--bag-compression")) {
-      o.compression = args.text();
-    } else {
-      args.unknown();
-    }
-  }
-  if (o.out_dir.empty() && o.bag_path.empty()) {
+  endo_stereo::tools::readArguments(argc, argv, kUsage, o, [&o](ArgReader& args) {
+    return readSceneOption(args, o) || readImagingOption(args, o) || readOutputOption(args, o);
+  });
+  o.params.fps = o.fps;
+  if (o.out_dir.empty() && o.bag.empty()) {
     throw UsageError("give --out DIR and/or --bag FILE (see --help)");
   }
   if (o.out_dir.empty()) o.write_images = o.write_gt = false;
@@ -209,159 +243,186 @@ Options parseArgs(int argc, char** argv) {
   return o;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  Options o;
-  try {
-    o = parseArgs(argc, argv);
-  } catch (const UsageError& e) {
-    std::cerr << "endo_stereo_generate: " << e.what() << "\n";
-    return kExitUsage;
-  }
-  endo_stereo::SurgicalSceneParams& params = o.params;
-  const std::string &out_dir = o.out_dir, &bag_path = o.bag_path;
-  std::string& ns = o.ns;
-  const int frames = o.frames, first = o.first;
-  const double start_time = o.start_time;
-  const bool write_gt = o.write_gt, write_images = o.write_images, bag_gt = o.bag_gt;
+// "/" or "/NS/" for the namespace @p ns (a leading slash added, trailing ones dropped).
+std::string topicPrefix(std::string ns) {
   while (ns.size() > 1 && ns.back() == '/') ns.pop_back();
   if (ns.empty() || ns[0] != '/') ns = "/" + ns;
-  const std::string prefix = ns == "/" ? "/" : ns + "/";
-  {
-    const std::string error = params.validate();
-    if (!error.empty()) {
-      std::cerr << "endo_stereo_generate: " << error << "\n";
-      return kExitUsage;
-    }
-  }
-  cv::setNumThreads(o.threads);
+  return ns == "/" ? "/" : ns + "/";
+}
 
-  const auto t0 = std::chrono::steady_clock::now();
-  endo_stereo::SurgicalScene scene(params);
+// DIR and the subfolders of the files asked for.
+void makeFolders(const Options& o) {
+  if (!makeDir(o.out_dir)) throw OutputError{"cannot create " + o.out_dir};
+  for (const char* sub : {"left", "right"}) {
+    if (o.write_images && !makeDir(o.out_dir + "/" + sub)) throw OutputError{""};
+  }
+  for (const char* sub : {"gt", "nonocc", "instrument", "specular"}) {
+    if (o.write_gt && !makeDir(o.out_dir + "/" + sub)) throw OutputError{""};
+  }
+}
+
+// DIR/left.yaml, DIR/right.yaml and DIR/sequence.yaml.
+void writeSequenceFiles(const Options& o, const endo_stereo::SurgicalScene& scene) {
+  const endo_stereo::SurgicalSceneParams& params = o.params;
   const endo_stereo::StereoCalibration& calib = scene.calibration();
+  std::string error;
+  if (!endo_stereo::saveCameraInfoYaml(o.out_dir + "/left.yaml", calib.left, "endoscope_left",
+                                       &error) ||
+      !endo_stereo::saveCameraInfoYaml(o.out_dir + "/right.yaml", calib.right, "endoscope_right",
+                                       &error)) {
+    throw OutputError{error};
+  }
   int d_min = 0, d_max = 0;
   scene.suggestedDisparityRange(&d_min, &d_max);
   const endo_stereo::RectifiedGeometry geo = scene.geometry();
+  std::ofstream meta(o.out_dir + "/sequence.yaml");
+  meta << "# endo_stereo_generate: synthetic surgical stereo sequence\n"
+       << "frames: " << o.frames << "\nfirst: " << o.first << "\nfps: " << params.fps
+       << "\nwidth: " << params.width << "\nheight: " << params.height << "\nseed: " << params.seed
+       << "\ndistorted: " << (params.distorted ? "true" : "false")
+       << "\ninterlaced: " << (params.interlaced ? "true" : "false")
+       << "\ninstruments: " << params.instruments << "\nnoise_sigma: " << params.noise_sigma
+       << "\nmotion_blur_samples: " << params.motion_blur_samples << "\nfocal_px: " << geo.f_px
+       << "\nbaseline_m: " << geo.baseline_m << "\ndoffs_px: " << geo.doffs()
+       << "\nmin_disparity: " << d_min << "\nmax_disparity: " << d_max
+       << "\nleft: left/%06d.png\nright: right/%06d.png"
+       << "\nground_truth: gt/%06d.pfm\nnonocc: nonocc/%06d.png\n";
+  if (!meta) throw OutputError{"cannot write " + o.out_dir + "/sequence.yaml"};
+}
 
-  if (!out_dir.empty()) {
-    if (!makeDir(out_dir)) {
-      std::cerr << "endo_stereo_generate: cannot create " << out_dir << "\n";
-      return kExitOutput;
-    }
-    for (const char* sub : {"left", "right"})
-      if (write_images && !makeDir(out_dir + "/" + sub)) return kExitOutput;
-    for (const char* sub : {"gt", "nonocc", "instrument", "specular"})
-      if (write_gt && !makeDir(out_dir + "/" + sub)) return kExitOutput;
-    std::string error;
-    if (!endo_stereo::saveCameraInfoYaml(out_dir + "/left.yaml", calib.left, "endoscope_left", &error) ||
-        !endo_stereo::saveCameraInfoYaml(out_dir + "/right.yaml", calib.right, "endoscope_right", &error)) {
-      std::cerr << "endo_stereo_generate: " << error << "\n";
-      return kExitOutput;
-    }
-    std::ofstream meta(out_dir + "/sequence.yaml");
-    meta << "# endo_stereo_generate: synthetic surgical stereo sequence\n"
-         << "frames: " << frames << "\nfirst: " << first << "\nfps: " << params.fps
-         << "\nwidth: " << params.width << "\nheight: " << params.height << "\nseed: " << params.seed
-         << "\ndistorted: " << (params.distorted ? "true" : "false")
-         << "\ninterlaced: " << (params.interlaced ? "true" : "false")
-         << "\ninstruments: " << params.instruments << "\nnoise_sigma: " << params.noise_sigma
-         << "\nmotion_blur_samples: " << params.motion_blur_samples
-         << "\nfocal_px: " << geo.f_px << "\nbaseline_m: " << geo.baseline_m
-         << "\ndoffs_px: " << geo.doffs() << "\nmin_disparity: " << d_min
-         << "\nmax_disparity: " << d_max << "\nleft: left/%06d.png\nright: right/%06d.png"
-         << "\nground_truth: gt/%06d.pfm\nnonocc: nonocc/%06d.png\n";
-    if (!meta) {
-      std::cerr << "endo_stereo_generate: cannot write " << out_dir << "/sequence.yaml\n";
-      return kExitOutput;
-    }
+// The bag of --bag (null without one), compressed as --bag-compression says.
+std::unique_ptr<rosbag::Bag> openBag(const Options& o) {
+  if (o.bag.empty()) return nullptr;
+  try {
+    auto bag = std::make_unique<rosbag::Bag>(o.bag, rosbag::bagmode::Write);
+    if (o.compression == "lz4") bag->setCompression(rosbag::compression::LZ4);
+    if (o.compression == "bz2") bag->setCompression(rosbag::compression::BZ2);
+    return bag;
+  } catch (const std::exception& e) {
+    throw OutputError{"cannot open bag " + o.bag + ": " + e.what()};
   }
+}
 
-  std::unique_ptr<rosbag::Bag> bag;
-  if (!bag_path.empty()) {
-    try {
-      bag = std::make_unique<rosbag::Bag>(bag_path, rosbag::bagmode::Write);
-      if (o.compression == "lz4") bag->setCompression(rosbag::compression::LZ4);
-      if (o.compression == "bz2") bag->setCompression(rosbag::compression::BZ2);
-    } catch (const std::exception& e) {
-      std::cerr << "endo_stereo_generate: cannot open bag " << bag_path << ": " << e.what() << "\n";
-      return kExitOutput;
-    }
-  }
-
+// A frame's images, ground truth and masks in DIR, as asked for.
+void writeFrameFiles(const Options& o, const endo_stereo::SurgicalFrame& frame, int index) {
   const std::vector<int> png_flags{cv::IMWRITE_PNG_COMPRESSION, 1};
+  const std::string name_png = frameName(index, "png");
+  const std::string& out_dir = o.out_dir;
+  try {
+    if (o.write_images) {
+      if (!cv::imwrite(out_dir + "/left/" + name_png, frame.left, png_flags) ||
+          !cv::imwrite(out_dir + "/right/" + name_png, frame.right, png_flags)) {
+        throw OutputError{"cannot write images of frame " + std::to_string(index)};
+      }
+    }
+    if (o.write_gt) {
+      std::string error;
+      if (!endo_stereo::writePfm(out_dir + "/gt/" + frameName(index, "pfm"), frame.gt_disparity,
+                                 &error)) {
+        throw OutputError{error};
+      }
+      const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
+      if (!cv::imwrite(out_dir + "/nonocc/" + name_png, nonocc, png_flags) ||
+          !cv::imwrite(out_dir + "/instrument/" + name_png, frame.instrument_mask, png_flags) ||
+          !cv::imwrite(out_dir + "/specular/" + name_png, frame.left_specular, png_flags)) {
+        throw OutputError{"cannot write masks of frame " + std::to_string(index)};
+      }
+    }
+  } catch (const cv::Exception& e) {
+    throw OutputError{e.what()};
+  }
+}
+
+// A frame's messages in the bag: both images and camera_infos under @p prefix with one stamp,
+// and with --bag-gt the ground truth.
+void writeBagFrame(const Options& o, rosbag::Bag& bag, const std::string& prefix,
+                   const endo_stereo::StereoCalibration& calib,
+                   const endo_stereo::SurgicalFrame& frame, int index) {
+  const ros::Time stamp(o.start_time + frame.stamp_s);
+  sensor_msgs::Image left, right;
+  sensor_msgs::CameraInfo left_info, right_info;
+  fillImage(frame.left, "bgr8", 3, left);
+  fillImage(frame.right, "bgr8", 3, right);
+  fillCameraInfo(calib.left, left_info);
+  fillCameraInfo(calib.right, right_info);
+  for (auto* h : {&left.header, &right.header, &left_info.header, &right_info.header}) {
+    h->stamp = stamp;
+    h->seq = uint32_t(index);
+  }
+  left.header.frame_id = calib.left.frame_id;
+  right.header.frame_id = calib.right.frame_id;
+  try {
+    bag.write(prefix + "left/image_raw", stamp, left);
+    bag.write(prefix + "left/camera_info", stamp, left_info);
+    bag.write(prefix + "right/image_raw", stamp, right);
+    bag.write(prefix + "right/camera_info", stamp, right_info);
+    if (o.bag_gt) {
+      sensor_msgs::Image gt;
+      fillImage(frame.gt_disparity, "32FC1", 4, gt);
+      gt.header = left.header;
+      bag.write(prefix + "ground_truth/disparity", stamp, gt);
+    }
+  } catch (const std::exception& e) {
+    throw OutputError{std::string("writing the bag failed: ") + e.what()};
+  }
+}
+
+// Renders every frame and writes it to the files and the bag (null: none), with a progress line
+// every 25 frames and at the end. @return the seconds spent rendering.
+double writeFrames(const Options& o, const endo_stereo::SurgicalScene& scene, rosbag::Bag* bag,
+                   const std::string& prefix) {
   endo_stereo::SurgicalFrame frame;
   double render_s = 0.0;
-  for (int k = 0; k < frames; ++k) {
-    const int index = first + k;
+  for (int k = 0; k < o.frames; ++k) {
+    const int index = o.first + k;
     const auto r0 = std::chrono::steady_clock::now();
     scene.render(index, frame);
     render_s += std::chrono::duration<double>(std::chrono::steady_clock::now() - r0).count();
-    const std::string name_png = frameName(index, "png");
-    try {
-      if (write_images) {
-        if (!cv::imwrite(out_dir + "/left/" + name_png, frame.left, png_flags) ||
-            !cv::imwrite(out_dir + "/right/" + name_png, frame.right, png_flags)) {
-          std::cerr << "endo_stereo_generate: cannot write images of frame " << index << "\n";
-          return kExitOutput;
-        }
-      }
-      if (write_gt) {
-        std::string error;
-        if (!endo_stereo::writePfm(out_dir + "/gt/" + frameName(index, "pfm"), frame.gt_disparity, &error)) {
-          std::cerr << "endo_stereo_generate: " << error << "\n";
-          return kExitOutput;
-        }
-        const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
-        if (!cv::imwrite(out_dir + "/nonocc/" + name_png, nonocc, png_flags) ||
-            !cv::imwrite(out_dir + "/instrument/" + name_png, frame.instrument_mask, png_flags) ||
-            !cv::imwrite(out_dir + "/specular/" + name_png, frame.left_specular, png_flags)) {
-          std::cerr << "endo_stereo_generate: cannot write masks of frame " << index << "\n";
-          return kExitOutput;
-        }
-      }
-    } catch (const cv::Exception& e) {
-      std::cerr << "endo_stereo_generate: " << e.what() << "\n";
-      return kExitOutput;
-    }
-    if (bag) {
-      const ros::Time stamp(start_time + frame.stamp_s);
-      sensor_msgs::Image left, right;
-      sensor_msgs::CameraInfo left_info, right_info;
-      fillImage(frame.left, "bgr8", 3, left);
-      fillImage(frame.right, "bgr8", 3, right);
-      fillCameraInfo(calib.left, left_info);
-      fillCameraInfo(calib.right, right_info);
-      for (auto* h : {&left.header, &right.header, &left_info.header, &right_info.header}) {
-        h->stamp = stamp;
-        h->seq = uint32_t(index);
-      }
-      left.header.frame_id = calib.left.frame_id;
-      right.header.frame_id = calib.right.frame_id;
-      try {
-        bag->write(prefix + "left/image_raw", stamp, left);
-        bag->write(prefix + "left/camera_info", stamp, left_info);
-        bag->write(prefix + "right/image_raw", stamp, right);
-        bag->write(prefix + "right/camera_info", stamp, right_info);
-        if (bag_gt) {
-          sensor_msgs::Image gt;
-          fillImage(frame.gt_disparity, "32FC1", 4, gt);
-          gt.header = left.header;
-          bag->write(prefix + "ground_truth/disparity", stamp, gt);
-        }
-      } catch (const std::exception& e) {
-        std::cerr << "endo_stereo_generate: writing the bag failed: " << e.what() << "\n";
-        return kExitOutput;
-      }
-    }
-    if ((k + 1) % 25 == 0 || k + 1 == frames) {
-      std::cerr << "endo_stereo_generate: " << (k + 1) << "/" << frames << " frames\n";
+    writeFrameFiles(o, frame, index);
+    if (bag) writeBagFrame(o, *bag, prefix, scene.calibration(), frame, index);
+    if ((k + 1) % 25 == 0 || k + 1 == o.frames) {
+      std::cerr << "endo_stereo_generate: " << (k + 1) << "/" << o.frames << " frames\n";
     }
   }
+  return render_s;
+}
+
+// The scene's parameters checked, the folder's files, every frame; then the figures on stdout.
+int generate(const Options& o) {
+  const std::string prefix = topicPrefix(o.ns);
+  const std::string error = o.params.validate();
+  if (!error.empty()) throw UsageError(error);
+  cv::setNumThreads(o.threads);
+
+  const auto t0 = std::chrono::steady_clock::now();
+  endo_stereo::SurgicalScene scene(o.params);
+  if (!o.out_dir.empty()) {
+    makeFolders(o);
+    writeSequenceFiles(o, scene);
+  }
+  const std::unique_ptr<rosbag::Bag> bag = openBag(o);
+  const double render_s = writeFrames(o, scene, bag.get(), prefix);
   if (bag) bag->close();
-  const double total_s = std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
-  std::cout << "frames: " << frames << "\nsize: " << params.width << "x" << params.height
-            << "\nrender_s_per_frame: " << render_s / frames << "\ntotal_s: " << total_s
+  const double total_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - t0).count();
+  int d_min = 0, d_max = 0;
+  scene.suggestedDisparityRange(&d_min, &d_max);
+  std::cout << "frames: " << o.frames << "\nsize: " << o.params.width << "x" << o.params.height
+            << "\nrender_s_per_frame: " << render_s / o.frames << "\ntotal_s: " << total_s
             << "\nsuggested_disparity_range: [" << d_min << ", " << d_max << "]\n";
   return kExitOk;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  try {
+    return generate(parseArgs(argc, argv));
+  } catch (const UsageError& e) {
+    std::cerr << "endo_stereo_generate: " << e.what() << "\n";
+    return kExitUsage;
+  } catch (const OutputError& e) {
+    if (!e.message.empty()) std::cerr << "endo_stereo_generate: " << e.message << "\n";
+    return kExitOutput;
+  }
 }

@@ -5,6 +5,7 @@
 #include <cerrno>
 #include <cmath>
 #include <cstdlib>
+#include <iostream>
 #include <sstream>
 
 namespace endo_stereo {
@@ -123,6 +124,117 @@ void ArgReader::unknown() const {
 
 void ArgReader::bad(const std::string& expected, const std::string& value) const {
   throw UsageError(flag_ + ": expected " + expected + ", got '" + value + "'");
+}
+
+int runTool(const char* tool, const std::function<int()>& body) {
+  try {
+    return body();
+  } catch (const UsageError& e) {
+    std::cerr << tool << ": " << e.what() << "\n";
+    return kExitUsage;
+  } catch (const InputError& e) {
+    std::cerr << tool << ": " << e.message << "\n";
+    return kExitInput;
+  } catch (const std::exception& e) {
+    std::cerr << tool << ": unexpected error: " << e.what() << "\n";
+    return kExitInput;
+  }
+}
+
+namespace {
+
+// The current flag is @p name, of a group @p o takes.
+bool takes(const ArgReader& args, const SharedOptions& o, SharedFlag group, const char* name) {
+  return (o.flags & group) != 0 && args.is(name);
+}
+
+// --left, --right, --first, --count, --fps, --bag, --namespace.
+bool readInputOption(ArgReader& args, SharedOptions& o) {
+  if (takes(args, o, kFlagLeftRight, "--left")) {
+    o.left = args.text();
+  } else if (takes(args, o, kFlagLeftRight, "--right")) {
+    o.right = args.text();
+  } else if (takes(args, o, kFlagFirst, "--first")) {
+    o.first = args.integer(o.ranges.first_min);
+    o.has_first = true;
+  } else if (takes(args, o, kFlagCount, "--count")) {
+    o.count = args.integer(1);
+  } else if (takes(args, o, kFlagFps, "--fps")) {
+    o.fps = o.ranges.fps_positive ? args.positive() : args.number();
+  } else if (takes(args, o, kFlagBag, "--bag")) {
+    o.bag = args.text();
+  } else if (takes(args, o, kFlagBag, "--namespace")) {
+    o.ns = args.text();
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// --params, --set, --calib, --min-disparity, --max-disparity, --threads.
+bool readPipelineOption(ArgReader& args, SharedOptions& o) {
+  if (takes(args, o, kFlagParams, "--params")) {
+    o.params_file = args.text();
+  } else if (takes(args, o, kFlagParams, "--set")) {
+    o.overrides.push_back(args.text());
+  } else if (takes(args, o, kFlagParams, "--calib")) {
+    o.calib = args.text();
+  } else if (takes(args, o, kFlagDisparityRange, "--min-disparity")) {
+    o.min_disparity = args.integer(o.ranges.disparity_min);
+    o.has_min = true;
+  } else if (takes(args, o, kFlagDisparityRange, "--max-disparity")) {
+    o.max_disparity = args.integer(o.ranges.disparity_min);
+    o.has_max = true;
+  } else if (takes(args, o, kFlagThreads, "--threads")) {
+    o.threads = args.integer(o.ranges.threads_min);
+    o.has_threads = true;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+// --out, --quiet.
+bool readOutputOption(ArgReader& args, SharedOptions& o) {
+  if (takes(args, o, kFlagOutDir, "--out")) {
+    o.out_dir = args.text();
+  } else if (takes(args, o, kFlagQuiet, "--quiet")) {
+    o.quiet = true;
+  } else {
+    return false;
+  }
+  return true;
+}
+
+}  // namespace
+
+bool readSharedOption(ArgReader& args, SharedOptions& o) {
+  return readInputOption(args, o) || readPipelineOption(args, o) || readOutputOption(args, o);
+}
+
+void readArguments(int argc, char** argv, const char* usage, SharedOptions& o,
+                   const std::function<bool(ArgReader&)>& read_own) {
+  ArgReader args(argc, argv);
+  while (args.next()) {
+    if (args.is("--help") || args.is("-h")) {
+      std::cout << usage;
+      std::exit(0);
+    }
+    if (!readSharedOption(args, o) && !read_own(args)) args.unknown();
+  }
+}
+
+FrameSourceSettings frameSourceSettings(const SharedOptions& o) {
+  FrameSourceSettings s;
+  s.left = o.left;
+  s.right = o.right;
+  s.has_first = o.has_first;
+  s.first = o.first;
+  s.count = o.count;
+  s.fps = o.fps;
+  s.bag_path = o.bag;
+  s.ns = o.ns;
+  return s;
 }
 
 }  // namespace tools

@@ -1,11 +1,14 @@
 // The tools' shared pieces: argument reading (a bad number is an error naming the flag and the
-// text) and the image-file frame source (patterns, first index, counts, errors).
+// text; the flags several tools share, each tool's groups and ranges; a tool's run and its exit
+// statuses) and the image-file frame source (patterns, first index, counts, errors).
 #include <gtest/gtest.h>
 #include <unistd.h>
 
 #include <climits>
 #include <cstdlib>
+#include <functional>
 #include <opencv2/imgcodecs.hpp>
+#include <stdexcept>
 #include <string>
 #include <vector>
 
@@ -15,6 +18,7 @@
 namespace {
 
 using endo_stereo::tools::ArgReader;
+using endo_stereo::tools::SharedOptions;
 using endo_stereo::tools::UsageError;
 
 TEST(ParseInt, TakesWholeBaseTenIntegersOnly) {
@@ -153,6 +157,158 @@ TEST(ArgReader, MissingValueAndUnknownFlag) {
   } catch (const UsageError& e) {
     EXPECT_STREQ(e.what(), "unknown argument '--left' (see --help)");
   }
+}
+
+// The groups of the shared flags that endo_stereo_cli takes.
+constexpr unsigned kCliFlags = endo_stereo::tools::kFlagLeftRight | endo_stereo::tools::kFlagFirst |
+                               endo_stereo::tools::kFlagCount | endo_stereo::tools::kFlagFps |
+                               endo_stereo::tools::kFlagParams |
+                               endo_stereo::tools::kFlagDisparityRange |
+                               endo_stereo::tools::kFlagThreads | endo_stereo::tools::kFlagQuiet;
+
+// Reads every word of @p words with readArguments into @p o (no flag of the tool's own); the
+// message of the UsageError thrown, "" when none is.
+std::string readAll(const std::vector<std::string>& words, SharedOptions& o) {
+  Argv a(words);
+  try {
+    endo_stereo::tools::readArguments(a.argc(), a.argv(), "usage\n", o,
+                                      [](ArgReader&) { return false; });
+  } catch (const UsageError& e) {
+    return e.what();
+  }
+  return "";
+}
+
+TEST(SharedOptions, ReadsTheFlagsOfTheGroupsATakes) {
+  SharedOptions o(kCliFlags);
+  const std::vector<std::string> words = endo_stereo::tools::splitList(
+      "--left l_%d.png --right r_%d.png --first 3 --count 5 --fps 12.5 --params p.yaml "
+      "--set a.b=1 --set c.d=2 --calib c.yaml --min-disparity -4 --max-disparity 60 --threads 2 "
+      "--quiet",
+      ' ');
+  EXPECT_EQ(readAll(words, o), "");
+  EXPECT_EQ(o.left, "l_%d.png");
+  EXPECT_EQ(o.right, "r_%d.png");
+  EXPECT_TRUE(o.has_first);
+  EXPECT_EQ(o.first, 3);
+  EXPECT_EQ(o.count, 5);
+  EXPECT_EQ(o.fps, 12.5);
+  EXPECT_EQ(o.params_file, "p.yaml");
+  EXPECT_EQ(o.overrides, (std::vector<std::string>{"a.b=1", "c.d=2"}));
+  EXPECT_EQ(o.calib, "c.yaml");
+  EXPECT_TRUE(o.has_min && o.has_max);
+  EXPECT_EQ(o.min_disparity, -4);
+  EXPECT_EQ(o.max_disparity, 60);
+  EXPECT_TRUE(o.has_threads);
+  EXPECT_EQ(o.threads, 2);
+  EXPECT_TRUE(o.quiet);
+
+  // Defaults when not given.
+  SharedOptions d(kCliFlags);
+  EXPECT_EQ(readAll({}, d), "");
+  EXPECT_FALSE(d.has_first || d.has_min || d.has_max || d.has_threads || d.quiet);
+  EXPECT_EQ(d.count, -1);
+  EXPECT_EQ(d.fps, 25.0);
+  EXPECT_EQ(d.ns, "/endoscope");
+
+  // Flags of groups the tool does not take are unknown to it.
+  for (const char* other : {"--bag", "--namespace", "--out"}) {
+    SharedOptions c(kCliFlags);
+    EXPECT_EQ(readAll({other, "x"}, c),
+              std::string("unknown argument '") + other + "' (see --help)");
+  }
+  SharedOptions bag(endo_stereo::tools::kFlagBag | endo_stereo::tools::kFlagOutDir);
+  EXPECT_EQ(readAll({"--bag", "b.bag", "--namespace", "/ns/", "--out", "dir"}, bag), "");
+  EXPECT_EQ(bag.bag, "b.bag");
+  EXPECT_EQ(bag.ns, "/ns/");  // as given
+  EXPECT_EQ(bag.out_dir, "dir");
+  EXPECT_EQ(readAll({"--left", "x"}, bag), "unknown argument '--left' (see --help)");
+}
+
+TEST(SharedOptions, ValuesKeepTheToolsRanges) {
+  SharedOptions o(kCliFlags);
+  EXPECT_EQ(readAll({"--first", "-1"}, o), "--first: expected an integer >= 0, got '-1'");
+  EXPECT_EQ(readAll({"--count", "x"}, o), "--count: expected an integer >= 1, got 'x'");
+  EXPECT_EQ(readAll({"--fps", "0"}, o), "--fps: expected a number > 0, got '0'");
+  EXPECT_EQ(readAll({"--threads", "-1"}, o), "--threads: expected an integer >= 0, got '-1'");
+  EXPECT_EQ(readAll({"--min-disparity", "x"}, o), "--min-disparity: expected an integer, got 'x'");
+  EXPECT_EQ(readAll({"--set"}, o), "--set needs a value");
+
+  endo_stereo::tools::SharedRanges floor;
+  floor.disparity_min = -100000;
+  SharedOptions f(kCliFlags, floor);
+  EXPECT_EQ(readAll({"--max-disparity", "-200000"}, f),
+            "--max-disparity: expected an integer >= -100000, got '-200000'");
+
+  endo_stereo::tools::SharedRanges any;
+  any.first_min = INT_MIN;
+  any.threads_min = INT_MIN;
+  any.fps_positive = false;
+  SharedOptions a(kCliFlags, any);
+  EXPECT_EQ(readAll({"--first", "-1", "--threads", "-1", "--fps", "-3"}, a), "");
+  EXPECT_EQ(a.first, -1);
+  EXPECT_EQ(a.threads, -1);
+  EXPECT_EQ(a.fps, -3.0);
+  EXPECT_EQ(readAll({"--fps", "x"}, a), "--fps: expected a number, got 'x'");
+}
+
+TEST(SharedOptions, OwnFlagsGoToTheToolsReaderAndHelpExits) {
+  SharedOptions o(kCliFlags);
+  Argv a({"--count", "2", "--mine", "7", "--quiet"});
+  int mine = 0;
+  endo_stereo::tools::readArguments(a.argc(), a.argv(), "usage\n", o, [&mine](ArgReader& args) {
+    if (!args.is("--mine")) return false;
+    mine = args.integer();
+    return true;
+  });
+  EXPECT_EQ(mine, 7);
+  EXPECT_EQ(o.count, 2);
+  EXPECT_TRUE(o.quiet);
+
+  Argv h({"--count", "2", "--help", "--bogus"});
+  EXPECT_EXIT(endo_stereo::tools::readArguments(h.argc(), h.argv(), "the usage\n", o,
+                                                [](ArgReader&) { return false; }),
+              ::testing::ExitedWithCode(0), "");
+}
+
+TEST(SharedOptions, FrameSourceSettingsTakeTheInputFlags) {
+  SharedOptions o(kCliFlags | endo_stereo::tools::kFlagBag);
+  ASSERT_EQ(readAll({"--left", "l", "--right", "r", "--first", "2", "--count", "4", "--fps", "10",
+                     "--bag", "b.bag", "--namespace", "/x"},
+                    o),
+            "");
+  const endo_stereo::tools::FrameSourceSettings s = endo_stereo::tools::frameSourceSettings(o);
+  EXPECT_EQ(s.left, "l");
+  EXPECT_EQ(s.right, "r");
+  EXPECT_TRUE(s.has_first);
+  EXPECT_EQ(s.first, 2);
+  EXPECT_EQ(s.count, 4);
+  EXPECT_EQ(s.fps, 10.0);
+  EXPECT_EQ(s.bag_path, "b.bag");
+  EXPECT_EQ(s.ns, "/x");
+  EXPECT_EQ(s.repeat, 0);
+  EXPECT_EQ(s.crop.area(), 0);
+}
+
+TEST(RunTool, ErrorsAreSaidAfterTheToolsNameWithTheirExitStatus) {
+  auto run = [](const std::function<int()>& body, std::string* said) {
+    ::testing::internal::CaptureStderr();
+    const int status = endo_stereo::tools::runTool("tool", body);
+    *said = ::testing::internal::GetCapturedStderr();
+    return status;
+  };
+  std::string said;
+  EXPECT_EQ(run([] { return 0; }, &said), 0);
+  EXPECT_EQ(said, "");
+  EXPECT_EQ(run([]() -> int { throw UsageError("bad flag"); }, &said),
+            endo_stereo::tools::kExitUsage);
+  EXPECT_EQ(said, "tool: bad flag\n");
+  EXPECT_EQ(run([]() -> int { throw endo_stereo::tools::InputError{"no file"}; }, &said),
+            endo_stereo::tools::kExitInput);
+  EXPECT_EQ(said, "tool: no file\n");
+  EXPECT_EQ(run([]() -> int { throw std::runtime_error("boom"); }, &said),
+            endo_stereo::tools::kExitInput);
+  EXPECT_EQ(said, "tool: unexpected error: boom\n");
 }
 
 TEST(FramePatterns, OneIntegerConversionOnly) {
