@@ -533,51 +533,82 @@ Options parseArgs(int argc, char** argv) {
   return o;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  if (argc > 1 && std::string(argv[1]) == "--rss-probe") return rssProbe(argc, argv);
-
-  Options o;
+// Reads the flags and fills in the defaults that depend on others. @return false on bad usage
+// (reported).
+bool readOptions(int argc, char** argv, Options* o) {
   try {
-    o = parseArgs(argc, argv);
+    *o = parseArgs(argc, argv);
   } catch (const endo_stereo::tools::UsageError& e) {
     std::cerr << "endo_stereo_bench: " << e.what() << "\n";
-    return endo_stereo::tools::kExitUsage;
+    return false;
   }
-  if (o.quick) o.repeats = 1;
-  if (o.data.empty()) o.data = o.root + "/../shared/data/middlebury";
-  if (o.json.empty()) o.json = o.root + "/docs/benchmark_results.json";
-  if (o.curve.empty()) o.curve = o.root + "/docs/precision_density.csv";
+  if (o->quick) o->repeats = 1;
+  if (o->data.empty()) o->data = o->root + "/../shared/data/middlebury";
+  if (o->json.empty()) o->json = o->root + "/docs/benchmark_results.json";
+  if (o->curve.empty()) o->curve = o->root + "/docs/precision_density.csv";
+  return true;
+}
 
-  const int hw_threads = cv::getNumThreads();
+/// When and with how many OpenCV threads the benchmark runs.
+struct RunInfo {
+  std::string date;
+  int opencv_threads = 0;
+};
+
+// The title and the machine line.
+RunInfo printHeader(const Options& o) {
+  RunInfo info;
+  info.opencv_threads = cv::getNumThreads();
   std::time_t now = std::time(nullptr);
   char date[64];
   std::strftime(date, sizeof(date), "%Y-%m-%d %H:%M %Z", std::localtime(&now));
+  info.date = date;
   std::printf(
       "# endo_stereo benchmark\n\nmachine: %s, %u logical CPUs, OpenCV %s with %d threads; "
       "%s; %d repetitions per timing (median); load average at start %s\n\n",
       cpuModel().c_str(), std::max(1u, static_cast<unsigned>(sysconf(_SC_NPROCESSORS_ONLN))),
-      CV_VERSION, hw_threads, date, o.repeats, loadAverage().c_str());
+      CV_VERSION, info.opencv_threads, date, o.repeats, loadAverage().c_str());
+  return info;
+}
 
+/// The presets our matcher runs with.
+struct Presets {
+  endo_stereo::PipelineParams default_preset, paper;
+};
+
+// ROOT/config/default.yaml and paper.yaml; a warning for each that could not be read.
+Presets loadPresets(const std::string& root) {
   std::string note_default, note_paper;
-  const endo_stereo::PipelineParams preset_default = loadPreset(o.root, "default", &note_default);
-  const endo_stereo::PipelineParams preset_paper = loadPreset(o.root, "paper", &note_paper);
+  Presets p;
+  p.default_preset = loadPreset(root, "default", &note_default);
+  p.paper = loadPreset(root, "paper", &note_paper);
   if (!note_default.empty()) std::printf("WARNING: %s\n", note_default.c_str());
   if (!note_paper.empty()) std::printf("WARNING: %s\n", note_paper.c_str());
+  return p;
+}
 
-  JsonWriter j;
+// The results' first keys: the machine and the settings.
+void beginResults(JsonWriter& j, const Options& o, const RunInfo& info) {
   j.beginObject();
-  j.key("date").value(date);
+  j.key("date").value(info.date);
   j.key("cpu").value(cpuModel());
   j.key("opencv").value(CV_VERSION);
-  j.key("opencv_threads").value(hw_threads);
+  j.key("opencv_threads").value(info.opencv_threads);
   j.key("repeats").value(o.repeats);
   j.key("load_average_start").value(loadAverage());
+}
 
-  // --- 1. accuracy and speed on scenes with ground truth --------------------------------------
+/// The scenes with ground truth: Middlebury's first, the 960x540 surgical scene last.
+struct SceneSet {
   std::vector<Scene> scenes;
   bool have_middlebury = false;
+  size_t num_middlebury = 0;  // how many of the first scenes are Middlebury's
+};
+
+// Middlebury's scenes (those found) and the synthetic slanted scene, unless --timing-only; the
+// surgical 960x540 scene of the timing case.
+SceneSet loadScenes(const Options& o) {
+  SceneSet set;
   if (o.timing_only) {
     // Only the timing case below: no Middlebury scenes to load.
   } else if (!dirExists(o.data)) {
@@ -588,36 +619,58 @@ int main(int argc, char** argv) {
   } else {
     for (const char* name : {"tsukuba", "venus", "teddy"}) {
       try {
-        scenes.push_back(fromMiddlebury(endo_stereo::loadMiddleburyScene(o.data + "/" + name)));
-        have_middlebury = true;
+        set.scenes.push_back(fromMiddlebury(endo_stereo::loadMiddleburyScene(o.data + "/" + name)));
+        set.have_middlebury = true;
       } catch (const std::exception& ex) {
         std::printf("SKIP Middlebury %s: %s\n", name, ex.what());
       }
     }
   }
-  const size_t num_middlebury = scenes.size();
-  if (!o.timing_only) scenes.push_back(slantedScene());  // the timing case needs only the next
-  scenes.push_back(surgicalScene(960, 540, 64, 0));
+  set.num_middlebury = set.scenes.size();
+  if (!o.timing_only) set.scenes.push_back(slantedScene());  // the timing case needs only the next
+  set.scenes.push_back(surgicalScene(960, 540, 64, 0));
+  return set;
+}
 
-  std::vector<Method> methods = {ourMethod("ours (default)", preset_default),
-                                 ourMethod("ours (paper)", preset_paper), bmMethod(),
+// --- 1. accuracy and speed on scenes with ground truth (the table unless --timing-only) ---------
+void accuracySection(const Options& o, const SceneSet& set, const Presets& presets, JsonWriter& j) {
+  std::vector<Method> methods = {ourMethod("ours (default)", presets.default_preset),
+                                 ourMethod("ours (paper)", presets.paper), bmMethod(),
                                  sgbmMethod("OpenCV SGBM"), quasiDenseMethod()};
   std::vector<Row> all_rows;
   if (!o.timing_only) {
     std::printf("## Accuracy (nonocc mask; errors among output pixels) and time\n\n");
-    for (const Scene& s : scenes) {
+    for (const Scene& s : set.scenes) {
       std::fprintf(stderr, "scoring %s ...\n", s.name.c_str());
       const std::vector<Row> rows = runScene(s, methods, o.repeats);
       all_rows.insert(all_rows.end(), rows.begin(), rows.end());
     }
     printRows(all_rows);
   }
-  j.key("middlebury_found").value(have_middlebury);
+  j.key("middlebury_found").value(set.have_middlebury);
   j.key("accuracy");
   writeRows(j, all_rows);
+}
 
-  // --- 2. the 960x540, 64-disparity timing case ----------------------------------------------
-  const Scene& big = scenes.back();
+void printTimingRows(const std::vector<Row>& rows) {
+  std::printf(
+      "| method | median ms | min ms | time / SGBM | median CPU ms | CPU / SGBM CPU | bad2 %% | "
+      "density %% |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
+  double sgbm_cpu = 0;
+  for (const Row& r : rows) {
+    if (r.method == "OpenCV SGBM") sgbm_cpu = r.median_cpu_ms;
+  }
+  for (const Row& r : rows) {
+    std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(),
+                r.median_ms, *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
+                r.median_cpu_ms, sgbm_cpu > 0 ? r.median_cpu_ms / sgbm_cpu : 0.0,
+                100 * r.nonocc.bad2, 100 * r.nonocc.density);
+  }
+}
+
+// --- 2. the 960x540, 64-disparity timing case on @p big ----------------------------------------
+std::vector<Row> timingSection(const Options& o, const Scene& big,
+                               const endo_stereo::PipelineParams& preset_default) {
   std::printf("\n## Timing at %dx%d, %d disparities [%d, %d] (%s)\n\n", big.left.cols,
               big.left.rows, big.num_disparities, big.min_disparity,
               big.min_disparity + big.num_disparities - 1, big.name.c_str());
@@ -631,77 +684,63 @@ int main(int argc, char** argv) {
   timing.push_back(ourMethod("ours, priors (same pair again), 1 thread", preset_default, 1, true));
   const int timing_repeats = std::max(o.repeats, o.quick ? 1 : 7);
   const std::vector<Row> timing_rows = runScene(big, timing, timing_repeats);
-  std::printf(
-      "| method | median ms | min ms | time / SGBM | median CPU ms | CPU / SGBM CPU | bad2 %% | "
-      "density %% |\n|---|---:|---:|---:|---:|---:|---:|---:|\n");
-  double sgbm_cpu = 0;
-  for (const Row& r : timing_rows) {
-    if (r.method == "OpenCV SGBM") sgbm_cpu = r.median_cpu_ms;
-  }
-  for (const Row& r : timing_rows) {
-    std::printf("| %s | %.1f | %.1f | %.2f | %.1f | %.2f | %.2f | %.1f |\n", r.method.c_str(),
-                r.median_ms, *std::min_element(r.times_ms.begin(), r.times_ms.end()), r.ratio_sgbm,
-                r.median_cpu_ms, sgbm_cpu > 0 ? r.median_cpu_ms / sgbm_cpu : 0.0,
-                100 * r.nonocc.bad2, 100 * r.nonocc.density);
-  }
+  printTimingRows(timing_rows);
   std::printf("(load average after the timing: %s)\n", loadAverage().c_str());
-  if (o.timing_only) return 0;
-  j.key("timing_960x540");
-  writeRows(j, timing_rows);
+  return timing_rows;
+}
 
-  // Peak memory of a process running only our matcher at this size (a fresh child process, so
-  // the benchmark's own scenes do not count), and of SGBM for reference.
-  if (!o.quick) {
-    char tmpl[] = "/tmp/es_bench_XXXXXX";
-    const char* dir = ::mkdtemp(tmpl);
-    if (dir) {
-      const std::string d(dir);
-      cv::imwrite(d + "/l.png", big.left);
-      cv::imwrite(d + "/r.png", big.right);
-      const std::string lo = std::to_string(big.min_disparity);
-      const std::string hi = std::to_string(big.min_disparity + big.num_disparities - 1);
-      const std::string rss = d + "/rss.txt";
-      const double rss_full = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "full"});
-      const double rss_prior = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "prior"});
-      const double rss_sgbm = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
-      const double rss_base = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "none"});
-      std::printf(
-          "\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
-          "ours with priors (the pair three times) %.1f MiB, OpenCV SGBM %.1f MiB (the same process loading the images "
-          "without matching: %.1f MiB)\n",
-          big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm, rss_base);
-      j.key("peak_rss_mib").beginObject();
-      j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
-      j.key("sgbm").value(rss_sgbm).key("baseline_no_matching").value(rss_base);
-      j.endObject();
-      for (const char* f : {"/l.png", "/r.png"}) std::remove((d + f).c_str());
-      ::rmdir(dir);
-    }
-  }
-
-  // --- 3. precision-density: our knobs beside SGBM's uniquenessRatio --------------------------
-  std::printf("\n## Precision-density sweep (%s)\n\n",
-              have_middlebury ? "pooled over the Middlebury scenes, nonocc"
-                              : "synthetic scenes only: Middlebury missing");
-  const std::vector<double> deltas =
-      o.quick ? std::vector<double>{0.05, 0.2}
-              : std::vector<double>{0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6};
-  const std::vector<double> jumps =
-      o.quick ? std::vector<double>{2.0} : std::vector<double>{1.0, 1.5, 2.0, 3.0, 4.0, 6.0};
-  const std::vector<int> uniqueness =
-      o.quick ? std::vector<int>{5, 20}
-              : std::vector<int>{0, 5, 10, 15, 20, 30, 40, 50, 60, 70, 80, 100};
-  const size_t sweep_scenes = have_middlebury ? num_middlebury : scenes.size();
-  std::ofstream csv(o.curve);
-  csv << "method,knob,value,scene,bad1,bad2,density,n_out,n_gt\n";
+// Peak memory of a process running only our matcher on @p big (a fresh child process, so the
+// benchmark's own scenes do not count), and of SGBM for reference.
+void memorySection(const Scene& big, JsonWriter& j) {
+  char tmpl[] = "/tmp/es_bench_XXXXXX";
+  const char* dir = ::mkdtemp(tmpl);
+  if (!dir) return;
+  const std::string d(dir);
+  cv::imwrite(d + "/l.png", big.left);
+  cv::imwrite(d + "/r.png", big.right);
+  const std::string lo = std::to_string(big.min_disparity);
+  const std::string hi = std::to_string(big.min_disparity + big.num_disparities - 1);
+  const std::string rss = d + "/rss.txt";
+  const double rss_full = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "full"});
+  const double rss_prior = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "prior"});
+  const double rss_sgbm = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "sgbm"});
+  const double rss_base = probePeakRss(rss, {d + "/l.png", d + "/r.png", lo, hi, "none"});
   std::printf(
-      "| method | knob | value | bad2 %% | bad1 %% | density %% |\n"
-      "|---|---|---:|---:|---:|---:|\n");
-  j.key("sweep").beginArray();
-  auto sweep = [&](const std::string& method, const std::string& knob, double value, Method m) {
+      "\npeak RSS of a process matching one %dx%d pair: ours full search %.1f MiB, "
+      "ours with priors (the pair three times) %.1f MiB, OpenCV SGBM %.1f MiB (the same process loading the images "
+      "without matching: %.1f MiB)\n",
+      big.left.cols, big.left.rows, rss_full, rss_prior, rss_sgbm, rss_base);
+  j.key("peak_rss_mib").beginObject();
+  j.key("ours_full").value(rss_full).key("ours_prior").value(rss_prior);
+  j.key("sgbm").value(rss_sgbm).key("baseline_no_matching").value(rss_base);
+  j.endObject();
+  for (const char* f : {"/l.png", "/r.png"}) std::remove((d + f).c_str());
+  ::rmdir(dir);
+}
+
+// Ours with the default preset and one knob set, through the same key names as the presets and
+// --set (params_io.hpp).
+Method oursWith(const endo_stereo::PipelineParams& preset_default, const std::string& key,
+                double value) {
+  endo_stereo::PipelineParams p = preset_default;
+  char text[32];
+  std::snprintf(text, sizeof(text), "%g", value);
+  const std::string err = endo_stereo::setPipelineParam(p, key, text);
+  if (!err.empty()) std::fprintf(stderr, "endo_stereo_bench: %s\n", err.c_str());
+  return ourMethod("ours", p);
+}
+
+/// The sweep's points: a method with one knob's value on the first @p count scenes, each scene
+/// and the pooled figures in the CSV, the pooled ones in the table and the JSON.
+class SweepPoints {
+ public:
+  SweepPoints(const std::vector<Scene>& scenes, size_t count, std::ofstream& csv, JsonWriter& j)
+      : scenes_(scenes), count_(count), csv_(csv), j_(j) {}
+
+  void add(const std::string& method, const std::string& knob, double value, Method m) {
     int64_t out = 0, gt = 0, bad1 = 0, bad2 = 0;
-    for (size_t i = 0; i < sweep_scenes; ++i) {
-      const Scene& s = scenes[i];
+    for (size_t i = 0; i < count_; ++i) {
+      const Scene& s = scenes_[i];
       m.prepare(s);
       cv::Mat d;
       m.compute(s, d);
@@ -710,46 +749,70 @@ int main(int argc, char** argv) {
       gt += sc.n_gt;
       bad1 += sc.n_bad1;
       bad2 += sc.n_bad2;
-      csv << method << "," << knob << "," << value << "," << s.name << "," << sc.bad1 << ","
-          << sc.bad2 << "," << sc.density << "," << sc.n_out << "," << sc.n_gt << "\n";
+      csv_ << method << "," << knob << "," << value << "," << s.name << "," << sc.bad1 << ","
+           << sc.bad2 << "," << sc.density << "," << sc.n_out << "," << sc.n_gt << "\n";
     }
     const double b1 = out ? double(bad1) / out : 0, b2 = out ? double(bad2) / out : 0;
     const double dens = gt ? double(out) / gt : 0;
-    csv << method << "," << knob << "," << value << ",pooled," << b1 << "," << b2 << "," << dens
-        << "," << out << "," << gt << "\n";
+    csv_ << method << "," << knob << "," << value << ",pooled," << b1 << "," << b2 << "," << dens
+         << "," << out << "," << gt << "\n";
     std::printf("| %s | %s | %g | %.2f | %.2f | %.1f |\n", method.c_str(), knob.c_str(), value,
                 100 * b2, 100 * b1, 100 * dens);
     std::fflush(stdout);
-    j.beginObject();
-    j.key("method").value(method).key("knob").value(knob).key("value").value(value);
-    j.key("bad1").value(b1).key("bad2").value(b2).key("density").value(dens);
-    j.endObject();
-  };
-  // Our knobs through the same key names as the presets and --set (params_io.hpp).
-  auto ours_with = [&](const std::string& key, double value) {
-    endo_stereo::PipelineParams p = preset_default;
-    char text[32];
-    std::snprintf(text, sizeof(text), "%g", value);
-    const std::string err = endo_stereo::setPipelineParam(p, key, text);
-    if (!err.empty()) std::fprintf(stderr, "endo_stereo_bench: %s\n", err.c_str());
-    return ourMethod("ours", p);
-  };
+    j_.beginObject();
+    j_.key("method").value(method).key("knob").value(knob).key("value").value(value);
+    j_.key("bad1").value(b1).key("bad2").value(b2).key("density").value(dens);
+    j_.endObject();
+  }
+
+ private:
+  const std::vector<Scene>& scenes_;
+  const size_t count_;
+  std::ofstream& csv_;
+  JsonWriter& j_;
+};
+
+// --- 3. precision-density: our knobs beside SGBM's uniquenessRatio (--curve, the JSON's "sweep") -
+void sweepSection(const Options& o, const SceneSet& set,
+                  const endo_stereo::PipelineParams& preset_default, JsonWriter& j) {
+  std::printf("\n## Precision-density sweep (%s)\n\n",
+              set.have_middlebury ? "pooled over the Middlebury scenes, nonocc"
+                                  : "synthetic scenes only: Middlebury missing");
+  const std::vector<double> deltas =
+      o.quick ? std::vector<double>{0.05, 0.2}
+              : std::vector<double>{0.0, 0.02, 0.05, 0.1, 0.15, 0.2, 0.3, 0.4, 0.5, 0.6};
+  const std::vector<double> jumps =
+      o.quick ? std::vector<double>{2.0} : std::vector<double>{1.0, 1.5, 2.0, 3.0, 4.0, 6.0};
+  const std::vector<int> uniqueness =
+      o.quick ? std::vector<int>{5, 20}
+              : std::vector<int>{0, 5, 10, 15, 20, 30, 40, 50, 60, 70, 80, 100};
+  const size_t sweep_scenes = set.have_middlebury ? set.num_middlebury : set.scenes.size();
+  std::ofstream csv(o.curve);
+  csv << "method,knob,value,scene,bad1,bad2,density,n_out,n_gt\n";
+  std::printf(
+      "| method | knob | value | bad2 %% | bad1 %% | density %% |\n"
+      "|---|---|---:|---:|---:|---:|\n");
+  j.key("sweep").beginArray();
+  SweepPoints sweep(set.scenes, sweep_scenes, csv, j);
   for (double dm : deltas) {
-    sweep("ours (default)", "delta_min", dm, ours_with("matcher.delta_min", dm));
+    sweep.add("ours (default)", "delta_min", dm, oursWith(preset_default, "matcher.delta_min", dm));
   }
   // The paper's knob is not monotone once the edge test is on (docs/method.md: pixels rejected at
   // small windows go on to larger ones, which fatten more); the edge test's threshold is the
   // knob that trades precision for density in the default preset, so it is swept too.
   for (double jump : jumps) {
-    sweep("ours (default)", "edge_disparity_jump_px", jump,
-          ours_with("matcher.edge_disparity_jump_px", jump));
+    sweep.add("ours (default)", "edge_disparity_jump_px", jump,
+              oursWith(preset_default, "matcher.edge_disparity_jump_px", jump));
   }
   for (int u : uniqueness) {
-    sweep("OpenCV SGBM", "uniquenessRatio", u, sgbmMethod("OpenCV SGBM", u));
+    sweep.add("OpenCV SGBM", "uniquenessRatio", u, sgbmMethod("OpenCV SGBM", u));
   }
   j.endArray();
-  j.endObject();
+}
 
+// Closes the results and writes them to --json. @return the exit status.
+int writeResults(const Options& o, JsonWriter& j) {
+  j.endObject();
   std::ofstream json(o.json);
   json << j.str();
   if (!json) {
@@ -758,4 +821,26 @@ int main(int argc, char** argv) {
   }
   std::printf("\nresults: %s\nsweep: %s\n", o.json.c_str(), o.curve.c_str());
   return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  if (argc > 1 && std::string(argv[1]) == "--rss-probe") return rssProbe(argc, argv);
+  Options o;
+  if (!readOptions(argc, argv, &o)) return endo_stereo::tools::kExitUsage;
+  const RunInfo info = printHeader(o);
+  const Presets presets = loadPresets(o.root);
+  JsonWriter j;
+  beginResults(j, o, info);
+  const SceneSet set = loadScenes(o);
+  accuracySection(o, set, presets, j);
+  const Scene& big = set.scenes.back();
+  const std::vector<Row> timing_rows = timingSection(o, big, presets.default_preset);
+  if (o.timing_only) return 0;
+  j.key("timing_960x540");
+  writeRows(j, timing_rows);
+  if (!o.quick) memorySection(big, j);
+  sweepSection(o, set, presets.default_preset, j);
+  return writeResults(o, j);
 }

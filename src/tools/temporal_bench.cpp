@@ -212,11 +212,9 @@ cv::Mat labelled(const cv::Mat& img, const std::string& text) {
   return out;
 }
 
-}  // namespace
-
-int main(int argc, char** argv) {
-  endo_stereo::SurgicalSceneParams sp;
-  endo_stereo::PipelineParams pp;
+// The command line.
+struct Options {
+  endo_stereo::SurgicalSceneParams scene;
   int frames = 100, warmup = 5, threads = 1, picture_frame = -1;
   bool breakdown = false;
   bool levels = false;
@@ -226,6 +224,13 @@ int main(int argc, char** argv) {
   std::string out_dir;
   std::vector<std::string> overrides;
   std::string params_file;
+};
+
+// What the steps before the run return when the program goes on (otherwise: its exit status).
+constexpr int kContinue = -1;
+
+// Reads the flags into @p o. @return kContinue, 0 after --help, kExitUsage on bad usage.
+int readOptions(int argc, char** argv, Options& o) {
   endo_stereo::tools::ArgReader args(argc, argv);
   try {
     while (args.next()) {
@@ -233,46 +238,46 @@ int main(int argc, char** argv) {
         std::cout << kUsage;
         return 0;
       } else if (args.is("--frames")) {
-        frames = args.integer();
+        o.frames = args.integer();
       } else if (args.is("--warmup")) {
-        warmup = args.integer();
+        o.warmup = args.integer();
       } else if (args.is("--width")) {
-        sp.width = args.integer();
+        o.scene.width = args.integer();
       } else if (args.is("--height")) {
-        sp.height = args.integer();
+        o.scene.height = args.integer();
       } else if (args.is("--seed")) {
-        sp.seed = uint64_t(args.integer64());
+        o.scene.seed = uint64_t(args.integer64());
       } else if (args.is("--instrument-speed")) {
-        sp.instrument_speed = args.number();
+        o.scene.instrument_speed = args.number();
       } else if (args.is("--noise")) {
-        sp.noise_sigma = args.number();
+        o.scene.noise_sigma = args.number();
       } else if (args.is("--params")) {
-        params_file = args.text();
+        o.params_file = args.text();
       } else if (args.is("--set")) {
-        overrides.push_back(args.text());
+        o.overrides.push_back(args.text());
       } else if (args.is("--levels")) {
-        levels = true;
+        o.levels = true;
       } else if (args.is("--stages")) {
-        stages = true;
+        o.stages = true;
       } else if (args.is("--breakdown")) {
-        breakdown = true;
+        o.breakdown = true;
       } else if (args.is("--threads")) {
-        threads = args.integer();
+        o.threads = args.integer();
       } else if (args.is("--no-baseline")) {
-        run_without = false;
+        o.run_without = false;
       } else if (args.is("--no-sgbm")) {
-        run_sgbm = false;
+        o.run_sgbm = false;
       } else if (args.is("--out")) {
-        out_dir = args.text();
+        o.out_dir = args.text();
       } else if (args.is("--pipeline")) {
-        pipeline_stages = true;
+        o.pipeline_stages = true;
       } else if (args.is("--async-quality")) {
-        async_quality = true;
+        o.async_quality = true;
       } else if (args.is("--pipeline-no-cloud")) {
-        pipeline_stages = true;
-        pipeline_cloud = false;
+        o.pipeline_stages = true;
+        o.pipeline_cloud = false;
       } else if (args.is("--picture-frame")) {
-        picture_frame = args.integer();
+        o.picture_frame = args.integer();
       } else {
         args.unknown();
       }
@@ -281,33 +286,41 @@ int main(int argc, char** argv) {
     std::cerr << e.what() << "\n";
     return endo_stereo::tools::kExitUsage;
   }
-  if (frames < 2 || warmup < 0 || warmup >= frames) {
+  return kContinue;
+}
+
+// The checks that need all the flags; makes the --out folder. @return kContinue or 2.
+int checkOptions(Options& o) {
+  if (o.frames < 2 || o.warmup < 0 || o.warmup >= o.frames) {
     std::cerr << "--frames must be >= 2 and 0 <= --warmup < --frames\n";
     return 2;
   }
-  if (picture_frame < 0 || picture_frame >= frames) picture_frame = frames - 1;
-  if (!out_dir.empty()) {
+  if (o.picture_frame < 0 || o.picture_frame >= o.frames) o.picture_frame = o.frames - 1;
+  if (!o.out_dir.empty()) {
     // Made before the long run, so that a bad path fails now and not silently at the end.
     std::error_code ec;
-    std::filesystem::create_directories(out_dir, ec);
-    if (ec || !std::filesystem::is_directory(out_dir)) {
-      std::cerr << "--out " << out_dir << ": cannot create the folder"
+    std::filesystem::create_directories(o.out_dir, ec);
+    if (ec || !std::filesystem::is_directory(o.out_dir)) {
+      std::cerr << "--out " << o.out_dir << ": cannot create the folder"
                 << (ec ? ": " + ec.message() : std::string()) << "\n";
       return 2;
     }
   }
-  const std::string scene_error = sp.validate();
+  const std::string scene_error = o.scene.validate();
   if (!scene_error.empty()) {
     std::cerr << scene_error << "\n";
     return 2;
   }
-  endo_stereo::SurgicalScene scene(sp);
-  int dmin = 0, dmax = 0;
-  scene.suggestedDisparityRange(&dmin, &dmax);
+  return kContinue;
+}
+
+// The pipeline's parameters: the preset (--params, --set), the scene's disparity range
+// [@p dmin, @p dmax] unless a --set gives another, --threads. @return kContinue or 2.
+int pipelineParams(const Options& o, int dmin, int dmax, endo_stereo::PipelineParams& pp) {
   pp.matcher.min_disparity = dmin;
   pp.matcher.max_disparity = dmax;
-  if (!params_file.empty()) {
-    const std::string e = endo_stereo::loadPipelineParams(params_file, pp);
+  if (!o.params_file.empty()) {
+    const std::string e = endo_stereo::loadPipelineParams(o.params_file, pp);
     if (!e.empty()) {
       std::cerr << e << "\n";
       return 2;
@@ -316,38 +329,30 @@ int main(int argc, char** argv) {
     pp.matcher.min_disparity = dmin;
     pp.matcher.max_disparity = dmax;
   }
-  for (const std::string& o : overrides) {
-    const std::string e = endo_stereo::applyParamOverride(pp, o);
+  for (const std::string& ov : o.overrides) {
+    const std::string e = endo_stereo::applyParamOverride(pp, ov);
     if (!e.empty()) {
       std::cerr << e << "\n";
       return 2;
     }
   }
-  pp.matcher.num_threads = threads;
-  cv::setNumThreads(threads);
-  if (pipeline_stages) return runPipelineStages(scene, pp, frames, warmup, pipeline_cloud,
-                                                 async_quality);
-  // Ours as users run it: Pipeline::process on the gray pair (already rectified, mono8), with the
-  // preset's priors and with priors off; fused output and coverage on.
-  endo_stereo::PipelineParams with = pp, without = pp;
-  for (endo_stereo::PipelineParams* q : {&with, &without}) {
-    q->rectify.mode = endo_stereo::RectifyMode::kPassThrough;
-    q->output.point_cloud = false;
-    q->output.fused = true;
-    q->output.coverage = true;
-  }
-  with.temporal.enabled = true;
-  without.temporal.enabled = false;
-  endo_stereo::Pipeline pipeline_with(with), pipeline_without(without);
-  pipeline_with.setColorOutput(false);
-  pipeline_without.setColorOutput(false);
-  endo_stereo::PipelineOutput out_with, out_without;
-  std::string error;
-  const int num_disp = ((pp.matcher.max_disparity - pp.matcher.min_disparity + 1 + 15) / 16) * 16;
-  cv::Ptr<cv::StereoSGBM> sgbm = cv::StereoSGBM::create(pp.matcher.min_disparity, num_disp, 5,
-                                                        8 * 25, 32 * 25, 1, 0, 10, 100, 1,
-                                                        cv::StereoSGBM::MODE_SGBM);
+  pp.matcher.num_threads = o.threads;
+  return kContinue;
+}
 
+// Ours as users run it: Pipeline::process on the gray pair (already rectified, mono8), with the
+// preset's priors (@p priors) or with priors off; fused output and coverage on.
+endo_stereo::PipelineParams comparedParams(endo_stereo::PipelineParams p, bool priors) {
+  p.rectify.mode = endo_stereo::RectifyMode::kPassThrough;
+  p.output.point_cloud = false;
+  p.output.fused = true;
+  p.output.coverage = true;
+  p.temporal.enabled = priors;
+  return p;
+}
+
+// What the comparison adds up over the frames.
+struct Totals {
   Timing t_with, t_without, t_sgbm;
   // --stages: priors and temporal update, prepare, search, edge, filters, the rest, total.
   Timing stage_ms[7];
@@ -355,211 +360,314 @@ int main(int argc, char** argv) {
   int64_t narrowed = 0, hits = 0, fallbacks = 0, deferred = 0, searched = 0;
   double width_sum = 0;
   int width_frames = 0;
-  endo_stereo::SurgicalFrame frame;
-  cv::Mat picture_left, picture_disp, picture_fused;
-  std::vector<double> frame_ms_with;
   int64_t breakdown_with[4] = {0, 0, 0, 0}, breakdown_without[4] = {0, 0, 0, 0};
-  for (int i = 0; i < frames; ++i) {
-    scene.render(i, frame);
+};
+
+// --breakdown, one frame: where the bad pixels of the disparities with and without priors lie
+// (near an instrument edge (10 px), in a highlight, elsewhere on the instrument, elsewhere);
+// printed and added to @p t.
+void countBadPixels(const endo_stereo::SurgicalFrame& frame, const cv::Mat& nonocc,
+                    const cv::Mat& d_with, const cv::Mat& d_without, Totals& t) {
+  cv::Mat edge;
+  cv::Mat dil, ero;
+  cv::dilate(frame.instrument_mask, dil, cv::Mat(), cv::Point(-1, -1), 10);
+  cv::erode(frame.instrument_mask, ero, cv::Mat(), cv::Point(-1, -1), 10);
+  edge = dil & ~ero;
+  cv::Mat spec;
+  cv::dilate(frame.left_specular, spec, cv::Mat(), cv::Point(-1, -1), 3);
+  for (int k = 0; k < 2; ++k) {
+    const cv::Mat& d = k == 0 ? d_with : d_without;
+    cv::Mat err;
+    cv::absdiff(d, frame.gt_disparity, err);
+    const cv::Mat bad = (err > 2.0f) & nonocc;  // NaN compares false
+    const int n_bad = cv::countNonZero(bad);
+    const int n_edge = cv::countNonZero(bad & edge);
+    const int n_spec = cv::countNonZero(bad & spec & ~edge);
+    const int n_inst = cv::countNonZero(bad & frame.instrument_mask & ~edge & ~spec);
+    int64_t* acc = k == 0 ? t.breakdown_with : t.breakdown_without;
+    acc[0] += n_edge;
+    acc[1] += n_spec;
+    acc[2] += n_inst;
+    acc[3] += n_bad - n_edge - n_spec - n_inst;
+    std::fprintf(stderr,
+                 "  %s: bad %d: instrument edge %d, highlight %d, instrument %d, other %d\n",
+                 k == 0 ? "with   " : "without", n_bad, n_edge, n_spec, n_inst,
+                 n_bad - n_edge - n_spec - n_inst);
+  }
+}
+
+// The per-frame line on stderr: time, bad2 and density with and without priors, SGBM's time.
+void printFrame(int i, const endo_stereo::SurgicalFrame& frame, const cv::Mat& nonocc,
+                const cv::Mat& d_with, const cv::Mat& d_without, double ms_with, double ms_without,
+                double ms_sgbm) {
+  Score this_frame, this_frame_without;
+  this_frame.add(d_with, frame.gt_disparity, nonocc);
+  this_frame_without.add(d_without, frame.gt_disparity, nonocc);
+  std::fprintf(
+      stderr,
+      "frame %3d: with priors %7.1f ms bad2 %.2f%% density %.1f%% | without %7.1f ms bad2 %.2f%% "
+      "density %.1f%% | sgbm %7.1f ms\n",
+      i, ms_with, 100.0 * this_frame.bad2(), 100.0 * this_frame.density(), ms_without,
+      100.0 * this_frame_without.bad2(), 100.0 * this_frame_without.density(), ms_sgbm);
+}
+
+// --levels, one frame: our matcher's outcome with priors.
+void printLevels(const endo_stereo::MatchStats& st) {
+  std::string acc, rej;
+  for (size_t k = 0; k < st.accepted_per_window.size(); ++k) {
+    if (st.accepted_per_window[k])
+      acc += " w" + std::to_string(k) + "=" + std::to_string(st.accepted_per_window[k]);
+  }
+  static const char* kNames[] = {"unsearched", "structure", "gap",    "lr",
+                                 "edge",       "outlier",   "nopeak", "filled"};
+  for (size_t k = 0; k < st.rejected.size() && k < 8; ++k) {
+    rej += std::string(" ") + kNames[k] + "=" + std::to_string(st.rejected[k]);
+  }
+  std::fprintf(stderr, "  levels: narrowed %lld | accepted%s |%s | match %.1f ms filter %.1f ms\n",
+               static_cast<long long>(st.prior_pixels), acc.c_str(), rej.c_str(), st.match_ms,
+               st.filter_ms);
+}
+
+// The results as JSON (printed, and written to --out's results.json).
+std::string resultsJson(const Options& o, const endo_stereo::PipelineParams& pp, const Totals& t,
+                        const endo_stereo::CoverageStats& cov_with,
+                        const endo_stereo::CoverageStats& cov_without) {
+  char buf[8192];
+  std::snprintf(
+      buf, sizeof(buf),
+      "{\n"
+      "  \"frames\": %d, \"warmup\": %d, \"width\": %d, \"height\": %d, \"seed\": %llu,\n"
+      "  \"disparity_range\": [%d, %d], \"threads\": %d,\n"
+      "  \"ms_per_frame_with_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
+      "  \"ms_per_frame_without_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
+      "  \"ms_per_frame_sgbm\": {\"mean\": %.2f, \"median\": %.2f},\n"
+      "  \"ratio_with_priors_to_sgbm\": %.4f,\n"
+      "  \"bad2_with_priors\": %.5f, \"density_with_priors\": %.4f,\n"
+      "  \"bad2_without_priors\": %.5f, \"density_without_priors\": %.4f,\n"
+      "  \"bad2_with_priors_narrowed_pixels\": %.5f, \"bad2_with_priors_full_range_pixels\": %.5f,\n"
+      "  \"bad_pixels_with_priors\": %lld, \"output_pixels_with_priors\": %lld,\n"
+      "  \"bad_pixels_without_priors\": %lld, \"output_pixels_without_priors\": %lld,\n"
+      "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
+      "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
+      "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
+      "  \"prior_deferred_share\": %.4f,\n"
+      "  \"mean_narrowed_width_px\": %.2f,\n"
+      "  \"coverage_with_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f},\n"
+      "  \"coverage_without_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f}\n"
+      "}\n",
+      o.frames, o.warmup, o.scene.width, o.scene.height, (unsigned long long)o.scene.seed,
+      pp.matcher.min_disparity, pp.matcher.max_disparity, o.threads, t.t_with.mean(),
+      t.t_with.median(), t.t_without.mean(), t.t_without.median(), t.t_sgbm.mean(),
+      t.t_sgbm.median(), t.t_sgbm.mean() > 0 ? t.t_with.mean() / t.t_sgbm.mean() : 0.0,
+      t.s_with.bad2(), t.s_with.density(), t.s_without.bad2(), t.s_without.density(),
+      t.s_with_narrowed.bad2(), t.s_with_full.bad2(), (long long)t.s_with.bad,
+      (long long)t.s_with.output, (long long)t.s_without.bad, (long long)t.s_without.output,
+      t.s_fused.bad2(), t.s_fused.density(), t.s_sgbm.bad2(), t.s_sgbm.density(),
+      t.searched ? double(t.narrowed) / t.searched : 0.0,
+      t.narrowed ? double(t.hits) / t.narrowed : 0.0,
+      t.searched ? double(t.fallbacks) / t.searched : 0.0,
+      t.searched ? double(t.deferred) / t.searched : 0.0,
+      t.width_frames ? t.width_sum / t.width_frames : 0.0, cov_with.central_share,
+      cov_with.overall_share, cov_with.central_never, cov_without.central_share,
+      cov_without.overall_share, cov_without.central_never);
+  return buf;
+}
+
+// --stages: the median time of each stage of a frame with priors after the warm-up.
+void printStages(const Totals& t, int warmup, int frames) {
+  static const char* const names[7] = {"priors, fusion, coverage (temporal stage)",
+                                       "matcher: preparation (buffers, views, integrals)",
+                                       "matcher: search (all passes, all window sizes)",
+                                       "matcher: edge measure",
+                                       "matcher: post-filters",
+                                       "the rest (pre-processing, conversions, counts)",
+                                       "total with priors (Pipeline::process)"};
+  std::printf(
+      "stages of a frame with priors, median of frames %d..%d (ms; the medians do not add "
+      "up exactly):\n",
+      warmup, frames - 1);
+  for (int k = 0; k < 7; ++k) std::printf("  %-50s %7.2f\n", names[k], t.stage_ms[k].median());
+}
+
+// --breakdown: the bad pixels of all frames after the warm-up, by where they lie.
+void printBreakdown(const Totals& t) {
+  std::printf(
+      "bad pixels after warm-up (instrument edge, highlight, instrument, other): with priors "
+      "%lld %lld %lld %lld, without %lld %lld %lld %lld\n",
+      (long long)t.breakdown_with[0], (long long)t.breakdown_with[1],
+      (long long)t.breakdown_with[2], (long long)t.breakdown_with[3],
+      (long long)t.breakdown_without[0], (long long)t.breakdown_without[1],
+      (long long)t.breakdown_without[2], (long long)t.breakdown_without[3]);
+}
+
+// The comparison on the gray frames: Pipeline::process with the preset's priors and without them,
+// and OpenCV's StereoSGBM, frame by frame; then its report.
+class Comparison {
+ public:
+  Comparison(const Options& o, const endo_stereo::PipelineParams& pp, int dmin, int dmax)
+      : o_(o),
+        pp_(pp),
+        dmin_(dmin),
+        dmax_(dmax),
+        with_(comparedParams(pp, true)),
+        without_(comparedParams(pp, false)) {
+    with_.setColorOutput(false);
+    without_.setColorOutput(false);
+    const int num_disp = ((pp.matcher.max_disparity - pp.matcher.min_disparity + 1 + 15) / 16) * 16;
+    sgbm_ = cv::StereoSGBM::create(pp.matcher.min_disparity, num_disp, 5, 8 * 25, 32 * 25, 1, 0, 10,
+                                   100, 1, cv::StereoSGBM::MODE_SGBM);
+  }
+
+  // Every frame of @p scene. @return false after a frame the pipeline refused (reported).
+  bool run(endo_stereo::SurgicalScene& scene) {
+    endo_stereo::SurgicalFrame frame;
+    for (int i = 0; i < o_.frames; ++i) {
+      scene.render(i, frame);
+      if (!compareFrame(i, frame)) return false;
+    }
+    return true;
+  }
+
+  // Prints the results (JSON, --stages, --breakdown) and writes --out's files. @return the exit
+  // status.
+  int report() {
+    const endo_stereo::CoverageStats cov_with = with_.temporal().coverage().stats();
+    const endo_stereo::CoverageStats cov_without = without_.temporal().coverage().stats();
+    const std::string json = resultsJson(o_, pp_, t_, cov_with, cov_without);
+    std::cout << json;
+    if (o_.stages) printStages(t_, o_.warmup, o_.frames);
+    if (o_.breakdown) printBreakdown(t_);
+    return o_.out_dir.empty() ? 0 : writeFiles(json);
+  }
+
+ private:
+  // One frame through the three methods, scored and added up.
+  bool compareFrame(int i, const endo_stereo::SurgicalFrame& frame) {
     cv::Mat l, r;
     cv::cvtColor(frame.left, l, cv::COLOR_BGR2GRAY);
     cv::cvtColor(frame.right, r, cv::COLOR_BGR2GRAY);
     const cv::Mat nonocc = frame.visibility == endo_stereo::kVisibleBoth;
     const endo_stereo::StereoInput in{l, r, "mono8", "mono8", frame.stamp_s};
     // 1. with priors: the whole Pipeline::process call
-    auto t0 = std::chrono::steady_clock::now();
-    if (!pipeline_with.process(in, out_with, &error)) {
-      std::cerr << "frame " << i << ": " << error << "\n";
-      return 1;
-    }
-    const double ms_with = msSince(t0);
-    const endo_stereo::MatchResult& res_with = out_with.match;
-    if (i >= warmup) {
-      const endo_stereo::MatchStats& st = res_with.stats;
-      stage_ms[0].ms.push_back(out_with.temporal_ms);
-      stage_ms[1].ms.push_back(st.prepare_ms);
-      stage_ms[2].ms.push_back(st.match_ms - st.prepare_ms - st.edge_ms);
-      stage_ms[3].ms.push_back(st.edge_ms);
-      stage_ms[4].ms.push_back(st.filter_ms);
-      stage_ms[5].ms.push_back(ms_with - out_with.temporal_ms - st.match_ms - st.filter_ms);
-      stage_ms[6].ms.push_back(ms_with);
-    }
+    double ms_with = 0;
+    if (!timedProcess(with_, in, out_with_, i, &ms_with)) return false;
+    const endo_stereo::MatchResult& res_with = out_with_.match;
+    if (i >= o_.warmup) recordStages(ms_with);
     // The range this frame searched (the tracker keeps it until the next frame).
     const endo_stereo::SearchRange* range =
-        out_with.priors_used ? &pipeline_with.temporal().range() : nullptr;
+        out_with_.priors_used ? &with_.temporal().range() : nullptr;
     // 2. without priors
     double ms_without = 0;
-    if (run_without) {
-      t0 = std::chrono::steady_clock::now();
-      if (!pipeline_without.process(in, out_without, &error)) {
-        std::cerr << "frame " << i << ": " << error << "\n";
-        return 1;
-      }
-      ms_without = msSince(t0);
+    if (o_.run_without) {
+      if (!timedProcess(without_, in, out_without_, i, &ms_without)) return false;
     } else {
-      out_without.match.disparity =
+      out_without_.match.disparity =
           cv::Mat(l.size(), CV_32FC1, cv::Scalar(std::numeric_limits<float>::quiet_NaN()));
     }
-    const endo_stereo::MatchResult& res_without = out_without.match;
+    const endo_stereo::MatchResult& res_without = out_without_.match;
     // 3. SGBM
     double ms_sgbm = 0;
     cv::Mat d_sgbm;
-    if (run_sgbm) {
-      t0 = std::chrono::steady_clock::now();
-      d_sgbm = sgbmDisparity(sgbm, l, r, pp.matcher.max_disparity);
+    if (o_.run_sgbm) {
+      const auto t0 = std::chrono::steady_clock::now();
+      d_sgbm = sgbmDisparity(sgbm_, l, r, pp_.matcher.max_disparity);
       ms_sgbm = msSince(t0);
     }
-    frame_ms_with.push_back(ms_with);
-    if (i >= warmup) {
-      t_with.ms.push_back(ms_with);
-      t_without.ms.push_back(ms_without);
-      if (run_sgbm) t_sgbm.ms.push_back(ms_sgbm);
+    if (i >= o_.warmup) {
+      t_.t_with.ms.push_back(ms_with);
+      t_.t_without.ms.push_back(ms_without);
+      if (o_.run_sgbm) t_.t_sgbm.ms.push_back(ms_sgbm);
     }
-    s_with.add(res_with.disparity, frame.gt_disparity, nonocc);
+    addScores(frame, nonocc, range, d_sgbm);
+    if (range) addPriorStats(l.total());
+    if (o_.breakdown && i >= o_.warmup) {
+      countBadPixels(frame, nonocc, res_with.disparity, res_without.disparity, t_);
+    }
+    if (i == o_.picture_frame) keepPicture(frame);
+    printFrame(i, frame, nonocc, res_with.disparity, res_without.disparity, ms_with, ms_without,
+               ms_sgbm);
+    if (o_.levels) printLevels(res_with.stats);
+    return true;
+  }
+
+  // Pipeline::process, timed. @return false after a refused frame (reported).
+  bool timedProcess(endo_stereo::Pipeline& pipeline, const endo_stereo::StereoInput& in,
+                    endo_stereo::PipelineOutput& out, int i, double* ms) {
+    const auto t0 = std::chrono::steady_clock::now();
+    if (!pipeline.process(in, out, &error_)) {
+      std::cerr << "frame " << i << ": " << error_ << "\n";
+      return false;
+    }
+    *ms = msSince(t0);
+    return true;
+  }
+
+  // --stages: the stages of this frame with priors.
+  void recordStages(double ms_with) {
+    const endo_stereo::MatchStats& st = out_with_.match.stats;
+    t_.stage_ms[0].ms.push_back(out_with_.temporal_ms);
+    t_.stage_ms[1].ms.push_back(st.prepare_ms);
+    t_.stage_ms[2].ms.push_back(st.match_ms - st.prepare_ms - st.edge_ms);
+    t_.stage_ms[3].ms.push_back(st.edge_ms);
+    t_.stage_ms[4].ms.push_back(st.filter_ms);
+    t_.stage_ms[5].ms.push_back(ms_with - out_with_.temporal_ms - st.match_ms - st.filter_ms);
+    t_.stage_ms[6].ms.push_back(ms_with);
+  }
+
+  // Every method's output of this frame against the ground truth; @p range: what the frame with
+  // priors searched (null: priors unused).
+  void addScores(const endo_stereo::SurgicalFrame& frame, const cv::Mat& nonocc,
+                 const endo_stereo::SearchRange* range, const cv::Mat& d_sgbm) {
+    const cv::Mat& d_with = out_with_.match.disparity;
+    t_.s_with.add(d_with, frame.gt_disparity, nonocc);
     if (range) {
       // Split the with-priors score by what each pixel searched.
-      const cv::Mat full = (range->lo <= pp.matcher.min_disparity) & (range->hi >= pp.matcher.max_disparity);
+      const cv::Mat full =
+          (range->lo <= pp_.matcher.min_disparity) & (range->hi >= pp_.matcher.max_disparity);
       const cv::Mat deferred_mask = range->lo > range->hi;  // not searched this frame
-      s_with_narrowed.add(res_with.disparity, frame.gt_disparity, nonocc & ~full & ~deferred_mask);
-      s_with_full.add(res_with.disparity, frame.gt_disparity, nonocc & full);
+      t_.s_with_narrowed.add(d_with, frame.gt_disparity, nonocc & ~full & ~deferred_mask);
+      t_.s_with_full.add(d_with, frame.gt_disparity, nonocc & full);
     }
-    s_without.add(res_without.disparity, frame.gt_disparity, nonocc);
-    s_fused.add(out_with.fused_disparity, frame.gt_disparity, nonocc);
-    if (run_sgbm) s_sgbm.add(d_sgbm, frame.gt_disparity, nonocc);
-    const endo_stereo::TemporalPriorStats& ps = out_with.prior_stats;
-    if (range) {
-      narrowed += ps.narrowed_pixels;
-      hits += ps.prior_hits;
-      fallbacks += ps.fallback_pixels;
-      deferred += ps.deferred_pixels;
-      searched += int64_t(l.total());
-      width_sum += ps.mean_narrowed_width_px;
-      ++width_frames;
-    }
-    if (breakdown && i >= warmup) {
-      // Where do the bad pixels lie? near an instrument edge (10 px), in a highlight, elsewhere.
-      cv::Mat edge;
-      cv::Mat dil, ero;
-      cv::dilate(frame.instrument_mask, dil, cv::Mat(), cv::Point(-1, -1), 10);
-      cv::erode(frame.instrument_mask, ero, cv::Mat(), cv::Point(-1, -1), 10);
-      edge = dil & ~ero;
-      cv::Mat spec;
-      cv::dilate(frame.left_specular, spec, cv::Mat(), cv::Point(-1, -1), 3);
-      for (int k = 0; k < 2; ++k) {
-        const cv::Mat& d = k == 0 ? res_with.disparity : res_without.disparity;
-        cv::Mat err;
-        cv::absdiff(d, frame.gt_disparity, err);
-        const cv::Mat bad = (err > 2.0f) & nonocc;  // NaN compares false
-        const int n_bad = cv::countNonZero(bad);
-        const int n_edge = cv::countNonZero(bad & edge);
-        const int n_spec = cv::countNonZero(bad & spec & ~edge);
-        const int n_inst = cv::countNonZero(bad & frame.instrument_mask & ~edge & ~spec);
-        int64_t* acc = k == 0 ? breakdown_with : breakdown_without;
-        acc[0] += n_edge;
-        acc[1] += n_spec;
-        acc[2] += n_inst;
-        acc[3] += n_bad - n_edge - n_spec - n_inst;
-        std::fprintf(stderr, "  %s: bad %d: instrument edge %d, highlight %d, instrument %d, other %d\n",
-                     k == 0 ? "with   " : "without", n_bad, n_edge, n_spec, n_inst, n_bad - n_edge - n_spec - n_inst);
-      }
-    }
-    if (i == picture_frame) {
-      picture_left = frame.left.clone();
-      picture_disp = endo_stereo::colorizeDisparity(res_with.disparity, dmin, dmax);
-      picture_fused = endo_stereo::colorizeDisparity(out_with.fused_disparity, dmin, dmax);
-    }
-    Score this_frame, this_frame_without;
-    this_frame.add(res_with.disparity, frame.gt_disparity, nonocc);
-    this_frame_without.add(res_without.disparity, frame.gt_disparity, nonocc);
-    std::fprintf(stderr,
-                 "frame %3d: with priors %7.1f ms bad2 %.2f%% density %.1f%% | without %7.1f ms bad2 %.2f%% "
-                 "density %.1f%% | sgbm %7.1f ms\n",
-                 i, ms_with, 100.0 * this_frame.bad2(), 100.0 * this_frame.density(), ms_without,
-                 100.0 * this_frame_without.bad2(), 100.0 * this_frame_without.density(), ms_sgbm);
-    if (levels) {
-      const endo_stereo::MatchStats& st = res_with.stats;
-      std::string acc, rej;
-      for (size_t k = 0; k < st.accepted_per_window.size(); ++k) {
-        if (st.accepted_per_window[k]) acc += " w" + std::to_string(k) + "=" + std::to_string(st.accepted_per_window[k]);
-      }
-      static const char* kNames[] = {"unsearched", "structure", "gap", "lr", "edge", "outlier", "nopeak", "filled"};
-      for (size_t k = 0; k < st.rejected.size() && k < 8; ++k) {
-        rej += std::string(" ") + kNames[k] + "=" + std::to_string(st.rejected[k]);
-      }
-      std::fprintf(stderr, "  levels: narrowed %lld | accepted%s |%s | match %.1f ms filter %.1f ms\n",
-                   static_cast<long long>(st.prior_pixels), acc.c_str(), rej.c_str(), st.match_ms,
-                   st.filter_ms);
-    }
+    t_.s_without.add(out_without_.match.disparity, frame.gt_disparity, nonocc);
+    t_.s_fused.add(out_with_.fused_disparity, frame.gt_disparity, nonocc);
+    if (o_.run_sgbm) t_.s_sgbm.add(d_sgbm, frame.gt_disparity, nonocc);
   }
-  const endo_stereo::CoverageStats cov_with = pipeline_with.temporal().coverage().stats();
-  const endo_stereo::CoverageStats cov_without = pipeline_without.temporal().coverage().stats();
 
-  char buf[8192];
-  std::snprintf(buf, sizeof(buf),
-                "{\n"
-                "  \"frames\": %d, \"warmup\": %d, \"width\": %d, \"height\": %d, \"seed\": %llu,\n"
-                "  \"disparity_range\": [%d, %d], \"threads\": %d,\n"
-                "  \"ms_per_frame_with_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
-                "  \"ms_per_frame_without_priors\": {\"mean\": %.2f, \"median\": %.2f},\n"
-                "  \"ms_per_frame_sgbm\": {\"mean\": %.2f, \"median\": %.2f},\n"
-                "  \"ratio_with_priors_to_sgbm\": %.4f,\n"
-                "  \"bad2_with_priors\": %.5f, \"density_with_priors\": %.4f,\n"
-                "  \"bad2_without_priors\": %.5f, \"density_without_priors\": %.4f,\n"
-                "  \"bad2_with_priors_narrowed_pixels\": %.5f, \"bad2_with_priors_full_range_pixels\": %.5f,\n"
-                "  \"bad_pixels_with_priors\": %lld, \"output_pixels_with_priors\": %lld,\n"
-                "  \"bad_pixels_without_priors\": %lld, \"output_pixels_without_priors\": %lld,\n"
-                "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
-                "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
-                "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
-                "  \"prior_deferred_share\": %.4f,\n"
-                "  \"mean_narrowed_width_px\": %.2f,\n"
-                "  \"coverage_with_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f},\n"
-                "  \"coverage_without_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f}\n"
-                "}\n",
-                frames, warmup, sp.width, sp.height, (unsigned long long)sp.seed, pp.matcher.min_disparity,
-                pp.matcher.max_disparity, threads, t_with.mean(), t_with.median(), t_without.mean(),
-                t_without.median(), t_sgbm.mean(), t_sgbm.median(),
-                t_sgbm.mean() > 0 ? t_with.mean() / t_sgbm.mean() : 0.0, s_with.bad2(), s_with.density(),
-                s_without.bad2(), s_without.density(), s_with_narrowed.bad2(), s_with_full.bad2(), (long long)s_with.bad, (long long)s_with.output,
-                (long long)s_without.bad, (long long)s_without.output, s_fused.bad2(), s_fused.density(), s_sgbm.bad2(),
-                s_sgbm.density(), searched ? double(narrowed) / searched : 0.0,
-                narrowed ? double(hits) / narrowed : 0.0, searched ? double(fallbacks) / searched : 0.0,
-                searched ? double(deferred) / searched : 0.0,
-                width_frames ? width_sum / width_frames : 0.0, cov_with.central_share, cov_with.overall_share,
-                cov_with.central_never, cov_without.central_share, cov_without.overall_share,
-                cov_without.central_never);
-  std::cout << buf;
-  if (stages) {
-    static const char* const names[7] = {
-        "priors, fusion, coverage (temporal stage)", "matcher: preparation (buffers, views, integrals)",
-        "matcher: search (all passes, all window sizes)", "matcher: edge measure",
-        "matcher: post-filters", "the rest (pre-processing, conversions, counts)",
-        "total with priors (Pipeline::process)"};
-    std::printf("stages of a frame with priors, median of frames %d..%d (ms; the medians do not add "
-                "up exactly):\n", warmup, frames - 1);
-    for (int k = 0; k < 7; ++k) std::printf("  %-50s %7.2f\n", names[k], stage_ms[k].median());
+  // The priors' figures of a frame that used them, over its @p pixels.
+  void addPriorStats(size_t pixels) {
+    const endo_stereo::TemporalPriorStats& ps = out_with_.prior_stats;
+    t_.narrowed += ps.narrowed_pixels;
+    t_.hits += ps.prior_hits;
+    t_.fallbacks += ps.fallback_pixels;
+    t_.deferred += ps.deferred_pixels;
+    t_.searched += int64_t(pixels);
+    t_.width_sum += ps.mean_narrowed_width_px;
+    ++t_.width_frames;
   }
-  if (breakdown) {
-    std::printf("bad pixels after warm-up (instrument edge, highlight, instrument, other): with priors "
-                "%lld %lld %lld %lld, without %lld %lld %lld %lld\n",
-                (long long)breakdown_with[0], (long long)breakdown_with[1], (long long)breakdown_with[2],
-                (long long)breakdown_with[3], (long long)breakdown_without[0], (long long)breakdown_without[1],
-                (long long)breakdown_without[2], (long long)breakdown_without[3]);
+
+  // The frame shown in fused.png.
+  void keepPicture(const endo_stereo::SurgicalFrame& frame) {
+    picture_left_ = frame.left.clone();
+    picture_disp_ = endo_stereo::colorizeDisparity(out_with_.match.disparity, dmin_, dmax_);
+    picture_fused_ = endo_stereo::colorizeDisparity(out_with_.fused_disparity, dmin_, dmax_);
   }
-  if (!out_dir.empty()) {
+
+  // --out: results.json, the coverage pictures and fused.png. @return the exit status.
+  int writeFiles(const std::string& json_text) {
+    const std::string& out_dir = o_.out_dir;
     std::ofstream json(out_dir + "/results.json");
-    json << buf;
+    json << json_text;
     bool ok = static_cast<bool>(json);
     ok &= cv::imwrite(out_dir + "/coverage.png",
-                      labelled(pipeline_with.temporal().coverage().colorImage(),
+                      labelled(with_.temporal().coverage().colorImage(),
                                "longest run without update (0 .. 20+ frames)"));
     ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
-                      labelled(pipeline_without.temporal().coverage().colorImage(),
+                      labelled(without_.temporal().coverage().colorImage(),
                                "no priors: longest run without update"));
     cv::Mat row;
-    cv::hconcat(std::vector<cv::Mat>{labelled(picture_left, "input (left)"),
-                                     labelled(picture_disp, "this frame"),
-                                     labelled(picture_fused, "fused (<= 10 frames old)")},
+    cv::hconcat(std::vector<cv::Mat>{labelled(picture_left_, "input (left)"),
+                                     labelled(picture_disp_, "this frame"),
+                                     labelled(picture_fused_, "fused (<= 10 frames old)")},
                 row);
     ok &= cv::imwrite(out_dir + "/fused.png", row);
     if (!ok) {
@@ -568,6 +676,38 @@ int main(int argc, char** argv) {
     }
     std::cout << "written: " << out_dir
               << "/results.json, coverage.png, coverage_without_priors.png, fused.png\n";
+    return 0;
   }
-  return 0;
+
+  const Options& o_;
+  const endo_stereo::PipelineParams pp_;
+  const int dmin_, dmax_;
+  endo_stereo::Pipeline with_, without_;
+  cv::Ptr<cv::StereoSGBM> sgbm_;
+  endo_stereo::PipelineOutput out_with_, out_without_;
+  std::string error_;
+  Totals t_;
+  cv::Mat picture_left_, picture_disp_, picture_fused_;
+};
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  Options o;
+  int rc = readOptions(argc, argv, o);
+  if (rc == kContinue) rc = checkOptions(o);
+  if (rc != kContinue) return rc;
+  endo_stereo::SurgicalScene scene(o.scene);
+  int dmin = 0, dmax = 0;
+  scene.suggestedDisparityRange(&dmin, &dmax);
+  endo_stereo::PipelineParams pp;
+  rc = pipelineParams(o, dmin, dmax, pp);
+  if (rc != kContinue) return rc;
+  cv::setNumThreads(o.threads);
+  if (o.pipeline_stages) {
+    return runPipelineStages(scene, pp, o.frames, o.warmup, o.pipeline_cloud, o.async_quality);
+  }
+  Comparison comparison(o, pp, dmin, dmax);
+  if (!comparison.run(scene)) return 1;
+  return comparison.report();
 }
