@@ -128,6 +128,14 @@ struct Options {
 // What the steps before the scoring return when the program goes on (otherwise: its exit status).
 constexpr int kContinue = -1;
 
+const char* const kUsage =
+    "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
+    "[--scenes a,b | --no-middlebury] [--sweep k=v1,v2] [--detail] [--dump DIR] "
+    "[--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]\n"
+    "Scores our pipeline (and with --peers OpenCV BM and SGBM) against ground truth: the "
+    "Middlebury scenes under --data (default ../shared/data/middlebury) and each --gt-pair folder, "
+    "searched over its --gt-range.\n";
+
 // Reads the flags into @p o (--params and --set apply to its parameters as they come).
 // @return kContinue or 2.
 int readOptions(int argc, char** argv, Options& o) {
@@ -185,10 +193,11 @@ int readOptions(int argc, char** argv, Options& o) {
           return 2;
         }
         o.gt_pairs.back().second = next();
+      } else if (a == "--help" || a == "-h") {
+        std::cout << kUsage;
+        return 0;
       } else {
-        std::cerr << "usage: endo_stereo_eval [--data DIR] [--params FILE] [--set k=v]... "
-                     "[--scenes a,b | --no-middlebury] [--sweep k=v1,v2] [--detail] "
-                     "[--gt-pair DIR --gt-range MIN:MAX]... [--peers [--json FILE]]\n";
+        std::cerr << "unknown argument '" << a << "'\n" << kUsage;
         return 2;
       }
     }

@@ -661,9 +661,12 @@ class Comparison {
     ok &= cv::imwrite(out_dir + "/coverage.png",
                       labelled(with_.temporal().coverage().colorImage(),
                                "longest run without update (0 .. 20+ frames)"));
-    ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
-                      labelled(without_.temporal().coverage().colorImage(),
-                               "no priors: longest run without update"));
+    // Without --no-baseline: the run without priors has a coverage map of its own.
+    const cv::Mat without_map = without_.temporal().coverage().colorImage();
+    if (!without_map.empty()) {
+      ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
+                        labelled(without_map, "no priors: longest run without update"));
+    }
     cv::Mat row;
     cv::hconcat(std::vector<cv::Mat>{labelled(picture_left_, "input (left)"),
                                      labelled(picture_disp_, "this frame"),
@@ -674,8 +677,8 @@ class Comparison {
       std::cerr << "--out " << out_dir << ": could not write results.json and the pictures\n";
       return 1;
     }
-    std::cout << "written: " << out_dir
-              << "/results.json, coverage.png, coverage_without_priors.png, fused.png\n";
+    std::cout << "written: " << out_dir << "/results.json, coverage.png, "
+              << (without_map.empty() ? "" : "coverage_without_priors.png, ") << "fused.png\n";
     return 0;
   }
 
