@@ -5,6 +5,8 @@
 #include <opencv2/imgproc.hpp>
 #include <sstream>
 
+#include "enum_names.hpp"
+
 namespace endo_stereo {
 
 namespace {
@@ -18,29 +20,21 @@ std::string typeName(int type) { return cv::typeToString(type); }
 
 }  // namespace
 
-std::string toString(InterlaceMode mode) {
-  switch (mode) {
-    case InterlaceMode::kNone:
-      return "none";
-    case InterlaceMode::kDownsample:
-      return "downsample";
-    case InterlaceMode::kField:
-      return "field";
-  }
-  return "none";
-}
+namespace {
+
+const detail::EnumName<InterlaceMode> kInterlaceModes[] = {
+    {InterlaceMode::kNone, "none"},
+    {InterlaceMode::kDownsample, "downsample"},
+    {InterlaceMode::kField, "field"},
+    {InterlaceMode::kNone, "progressive"},
+};
+
+}  // namespace
+
+std::string toString(InterlaceMode mode) { return detail::nameOf(kInterlaceModes, mode, "none"); }
 
 bool parseInterlaceMode(const std::string& text, InterlaceMode* mode) {
-  if (text == "none" || text == "progressive") {
-    *mode = InterlaceMode::kNone;
-  } else if (text == "downsample") {
-    *mode = InterlaceMode::kDownsample;
-  } else if (text == "field") {
-    *mode = InterlaceMode::kField;
-  } else {
-    return false;
-  }
-  return true;
+  return detail::valueOf(kInterlaceModes, text, mode);
 }
 
 std::string PreprocessParams::validate() const {

@@ -4,57 +4,42 @@
 #include <string>
 
 #include "endo_stereo/core/rectification.hpp"
+#include "enum_names.hpp"
 
 namespace endo_stereo {
 
+namespace {
+
+const detail::EnumName<RectifyMode> kRectifyModes[] = {
+    {RectifyMode::kCalibrated, "calibrated"},
+    {RectifyMode::kUncalibrated, "uncalibrated"},
+    {RectifyMode::kPassThrough, "pass_through"},
+    {RectifyMode::kPassThrough, "passthrough"},
+    {RectifyMode::kPassThrough, "none"},
+};
+
+const detail::EnumName<UncalibratedMethod> kUncalibratedMethods[] = {
+    {UncalibratedMethod::kAuto, "auto"},
+    {UncalibratedMethod::kHomography, "homography"},
+    {UncalibratedMethod::kPolar, "polar"},
+};
+
+}  // namespace
+
 std::string toString(RectifyMode mode) {
-  switch (mode) {
-    case RectifyMode::kCalibrated:
-      return "calibrated";
-    case RectifyMode::kUncalibrated:
-      return "uncalibrated";
-    case RectifyMode::kPassThrough:
-      return "pass_through";
-  }
-  return "calibrated";
+  return detail::nameOf(kRectifyModes, mode, "calibrated");
 }
 
 bool parseRectifyMode(const std::string& t, RectifyMode* m) {
-  if (t == "calibrated") {
-    *m = RectifyMode::kCalibrated;
-  } else if (t == "uncalibrated") {
-    *m = RectifyMode::kUncalibrated;
-  } else if (t == "pass_through" || t == "passthrough" || t == "none") {
-    *m = RectifyMode::kPassThrough;
-  } else {
-    return false;
-  }
-  return true;
+  return detail::valueOf(kRectifyModes, t, m);
 }
 
 std::string toString(UncalibratedMethod m) {
-  switch (m) {
-    case UncalibratedMethod::kAuto:
-      return "auto";
-    case UncalibratedMethod::kHomography:
-      return "homography";
-    case UncalibratedMethod::kPolar:
-      return "polar";
-  }
-  return "auto";
+  return detail::nameOf(kUncalibratedMethods, m, "auto");
 }
 
 bool parseUncalibratedMethod(const std::string& t, UncalibratedMethod* m) {
-  if (t == "auto") {
-    *m = UncalibratedMethod::kAuto;
-  } else if (t == "homography") {
-    *m = UncalibratedMethod::kHomography;
-  } else if (t == "polar") {
-    *m = UncalibratedMethod::kPolar;
-  } else {
-    return false;
-  }
-  return true;
+  return detail::valueOf(kUncalibratedMethods, t, m);
 }
 
 std::string RectifyParams::validate() const {
