@@ -63,6 +63,14 @@ class TemporalMatcher {
                const SearchRange* range, MatchResult& out, TemporalMatchReport* report = nullptr);
 
  private:
+  // Milliseconds summed over a frame's passes.
+  struct PassTimes {
+    double match_ms = 0.0, prepare_ms = 0.0, edge_ms = 0.0;
+  };
+  void useLargerWindows(bool on);
+  void matchPass(const cv::Mat& left, const cv::Mat& right, const SearchRange* range,
+                 MatchResult& out, PassTimes& times);
+
   MatcherParams matcher_params_;
   PostFilterParams filter_params_;
   RobustMatcher matcher_;  // the passes only match: edge test and post-filter run on the result

@@ -95,64 +95,11 @@ void TemporalMatcher::setParams(const MatcherParams& matcher_params,
   filter_params_ = filter_params;
 }
 
-void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
-                              TemporalTracker& temporal, const SearchRange* range,
-                              MatchResult& out, TemporalMatchReport* report) {
-  TemporalMatchReport r;
-  const TemporalParams& tp = temporal.params();
-  // Larger windows for narrowed misses (TemporalParams::fallback_larger_windows).
-  auto useLargerWindows = [&](bool on) {
-    if (on == larger_windows_) return;
-    matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
-    larger_windows_ = on;
-  };
-  useLargerWindows(tp.enabled && tp.fallback_larger_windows);
-  double match_ms = 0.0, prepare_ms = 0.0, edge_ms = 0.0;
-  auto addTimes = [&](const MatchStats& s) {
-    match_ms += s.match_ms;
-    prepare_ms += s.prepare_ms;
-    edge_ms += s.edge_ms;
-  };
+namespace {
 
-  // The depth-edge measure on a result of the passes (which only match), as
-  // RobustMatcher::compute() runs it after matching.
-  auto edgeTest = [&](MatchResult& m) {
-    if (!edgeTestOn(matcher_params_)) return;
-    const auto t = Clock::now();
-    // The window index of each accepted pixel, from its code (kCodeAcceptedBase + index).
-    window_idx_.create(m.code.size(), CV_8UC1);
-    for (int y = 0; y < m.code.rows; ++y) {
-      const uint8_t* c = m.code.ptr<uint8_t>(y);
-      uint8_t* w = window_idx_.ptr<uint8_t>(y);
-      for (int x = 0; x < m.code.cols; ++x) {
-        w[x] = c[x] >= kCodeAcceptedBase ? uint8_t(c[x] - kCodeAcceptedBase) : uint8_t(0);
-      }
-    }
-    const MatcherParams& mp = matcher_params_;
-    const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
-    rejectEdgeStraddlers(mp, left, right, num_levels, window_idx_, m, edge_tmp_[0], edge_tmp_[1],
-                         edge_tmp_[2], edge_tmp_[3], edge_tmp_[4]);
-    const double ms = msSince(t);
-    match_ms += ms;
-    edge_ms += ms;
-  };
-  auto matchPass = [&](const SearchRange* rg) {
-    matcher_.compute(left, right, out, rg);
-    addTimes(out.stats);
-    edgeTest(out);
-  };
-
-  // No usable prior (range == nullptr: the first frame, after a reset): the full range.
-  matchPass(range);
-  if (range && temporal.rejectPriors(out.disparity)) {
-    // The priors described another scene: the frame again over the full range.
-    r.priors_rejected = true;
-    range = nullptr;
-    matchPass(range);
-  }
-  r.priors_used = range != nullptr;
-
-  // Accepted per window size, before the post-filter (as RobustMatcher::compute() counts them).
+// Accepted pixels per window size, from the codes (kCodeAcceptedBase + window index), before the
+// post-filter (as RobustMatcher::compute() counts them).
+void countAcceptedPerWindow(MatchResult& out) {
   out.stats.accepted_per_window.fill(0);
   for (int y = 0; y < out.code.rows; ++y) {
     const uint8_t* c = out.code.ptr<uint8_t>(y);
@@ -165,11 +112,67 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
       }
     }
   }
+}
+
+}  // namespace
+
+// Larger windows for narrowed misses (TemporalParams::fallback_larger_windows).
+void TemporalMatcher::useLargerWindows(bool on) {
+  if (on == larger_windows_) return;
+  matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
+  larger_windows_ = on;
+}
+
+// One matching pass over @p range (nullptr: the full range), then the depth-edge measure on its
+// map, as RobustMatcher::compute() runs it after matching.
+void TemporalMatcher::matchPass(const cv::Mat& left, const cv::Mat& right,
+                                const SearchRange* range, MatchResult& out, PassTimes& times) {
+  matcher_.compute(left, right, out, range);
+  times.match_ms += out.stats.match_ms;
+  times.prepare_ms += out.stats.prepare_ms;
+  times.edge_ms += out.stats.edge_ms;
+  if (!edgeTestOn(matcher_params_)) return;
+  const auto t = Clock::now();
+  // The window index of each accepted pixel, from its code (kCodeAcceptedBase + index).
+  window_idx_.create(out.code.size(), CV_8UC1);
+  for (int y = 0; y < out.code.rows; ++y) {
+    const uint8_t* c = out.code.ptr<uint8_t>(y);
+    uint8_t* w = window_idx_.ptr<uint8_t>(y);
+    for (int x = 0; x < out.code.cols; ++x) {
+      w[x] = c[x] >= kCodeAcceptedBase ? uint8_t(c[x] - kCodeAcceptedBase) : uint8_t(0);
+    }
+  }
+  const MatcherParams& mp = matcher_params_;
+  const int num_levels = (mp.window_max_px - mp.window_min_px) / mp.window_step_px + 1;
+  rejectEdgeStraddlers(mp, left, right, num_levels, window_idx_, out, edge_tmp_[0], edge_tmp_[1],
+                       edge_tmp_[2], edge_tmp_[3], edge_tmp_[4]);
+  const double ms = msSince(t);
+  times.match_ms += ms;
+  times.edge_ms += ms;
+}
+
+void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
+                              TemporalTracker& temporal, const SearchRange* range,
+                              MatchResult& out, TemporalMatchReport* report) {
+  TemporalMatchReport r;
+  const TemporalParams& tp = temporal.params();
+  useLargerWindows(tp.enabled && tp.fallback_larger_windows);
+  PassTimes times;
+  // No usable prior (range == nullptr: the first frame, after a reset): the full range.
+  matchPass(left, right, range, out, times);
+  if (range && temporal.rejectPriors(out.disparity)) {
+    // The priors described another scene: the frame again over the full range.
+    r.priors_rejected = true;
+    range = nullptr;
+    matchPass(left, right, range, out, times);
+  }
+  r.priors_used = range != nullptr;
+  countAcceptedPerWindow(out);
   applyPostFilter(out, filter_params_);
   // Matching time of all passes (the post-filter is filter_ms).
-  out.stats.match_ms = match_ms;
-  out.stats.prepare_ms = prepare_ms;
-  out.stats.edge_ms = edge_ms;
+  out.stats.match_ms = times.match_ms;
+  out.stats.prepare_ms = times.prepare_ms;
+  out.stats.edge_ms = times.edge_ms;
   if (report) *report = r;
 }
 
