@@ -78,15 +78,16 @@ inline int countMask(const cv::v_uint16x8& m) {
 // cv::parallel_for_ may run on any number of threads. Per-stripe counters are summed in stripe
 // order afterwards, and every pixel's output depends only on its inputs, so results do not depend
 // on the thread count.
-constexpr int kStripeRows = 32;
+constexpr int kTemporalStripeRows = 32;
 
 template <size_t N, typename Body>
 std::array<int64_t, N> forRowStripes(int rows, const Body& body) {
-  const int stripes = (rows + kStripeRows - 1) / kStripeRows;
+  const int stripes = (rows + kTemporalStripeRows - 1) / kTemporalStripeRows;
   std::vector<std::array<int64_t, N>> counts(size_t(stripes), std::array<int64_t, N>{});
   cv::parallel_for_(cv::Range(0, stripes), [&](const cv::Range& range) {
     for (int s = range.start; s < range.end; ++s) {
-      body(s * kStripeRows, std::min(rows, (s + 1) * kStripeRows), counts[size_t(s)]);
+      body(s * kTemporalStripeRows, std::min(rows, (s + 1) * kTemporalStripeRows),
+           counts[size_t(s)]);
     }
   });
   std::array<int64_t, N> total{};

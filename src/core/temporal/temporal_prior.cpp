@@ -19,7 +19,7 @@ namespace endo_stereo {
 using detail::checkDisparity;
 using detail::finite;
 using detail::forRowStripes;
-using detail::kStripeRows;
+using detail::kTemporalStripeRows;
 using detail::saturatingIncrement;
 #if CV_SIMD128
 using detail::countMask;
@@ -36,7 +36,7 @@ constexpr float kNoPriorHi = -1e9f;
 
 // Block size of the coarse min / max grid behind the edge zone, px.
 constexpr int kEdgeBlock = 4;
-static_assert(kStripeRows % kEdgeBlock == 0, "a stripe must hold whole block rows");
+static_assert(kTemporalStripeRows % kEdgeBlock == 0, "a stripe must hold whole block rows");
 
 // floor / ceil of a float to int without a libm call or a branch: truncate, then step once
 // towards -inf / +inf when the truncation went the other way. Exact for |x| < 2^31 (floats of
