@@ -661,11 +661,11 @@ class Comparison {
     ok &= cv::imwrite(out_dir + "/coverage.png",
                       labelled(with_.temporal().coverage().colorImage(),
                                "longest run without update (0 .. 20+ frames)"));
-    // Without --no-baseline: the run without priors has a coverage map of its own.
-    const cv::Mat without_map = without_.temporal().coverage().colorImage();
-    if (!without_map.empty()) {
+    // The run without priors (unless --no-baseline) has a coverage map of its own.
+    if (o_.run_without) {
       ok &= cv::imwrite(out_dir + "/coverage_without_priors.png",
-                        labelled(without_map, "no priors: longest run without update"));
+                        labelled(without_.temporal().coverage().colorImage(),
+                                 "no priors: longest run without update"));
     }
     cv::Mat row;
     cv::hconcat(std::vector<cv::Mat>{labelled(picture_left_, "input (left)"),
@@ -678,7 +678,7 @@ class Comparison {
       return 1;
     }
     std::cout << "written: " << out_dir << "/results.json, coverage.png, "
-              << (without_map.empty() ? "" : "coverage_without_priors.png, ") << "fused.png\n";
+              << (o_.run_without ? "coverage_without_priors.png, " : "") << "fused.png\n";
     return 0;
   }
 

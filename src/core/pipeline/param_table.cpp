@@ -25,12 +25,6 @@ std::string lower(std::string s) {
   return s;
 }
 
-std::string trimLocal(const std::string& s) {
-  size_t b = 0, e = s.size();
-  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
-  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
-  return s.substr(b, e - b);
-}
 
 // --- text <-> value, one overload per supported field type -------------------------------------
 
@@ -48,7 +42,7 @@ std::string toText(double v) {
 [[maybe_unused]] std::string toText(const std::string& v) { return v; }
 
 std::string fromText(const std::string& text, bool& out) {
-  const std::string t = lower(trimLocal(text));
+  const std::string t = lower(trimText(text));
   if (t == "true" || t == "yes" || t == "on" || t == "1") {
     out = true;
     return {};
@@ -61,7 +55,7 @@ std::string fromText(const std::string& text, bool& out) {
 }
 
 std::string fromText(const std::string& text, int& out) {
-  std::string t = trimLocal(text);
+  std::string t = trimText(text);
   if (!t.empty() && t[0] == '+') t.erase(0, 1);
   int v = 0;
   const auto res = std::from_chars(t.data(), t.data() + t.size(), v);
@@ -73,7 +67,7 @@ std::string fromText(const std::string& text, int& out) {
 }
 
 std::string fromText(const std::string& text, double& out) {
-  std::string t = trimLocal(text);
+  std::string t = trimText(text);
   if (!t.empty() && t[0] == '+') t.erase(0, 1);
   double v = 0.0;
   const auto res = std::from_chars(t.data(), t.data() + t.size(), v);
@@ -188,7 +182,7 @@ ParamEntry enumField(const char* section, const char* name, Component PipelinePa
     return std::string("?");
   };
   e.set = [component, member, names](PipelineParams& p, const std::string& text) {
-    const std::string t = lower(trimLocal(text));
+    const std::string t = lower(trimText(text));
     for (const auto& n : names) {
       if (n.first == t) {
         p.*component.*member = n.second;
@@ -436,7 +430,12 @@ void addOutput(std::vector<ParamEntry>& t) {
 
 }  // namespace
 
-std::string trimText(const std::string& s) { return trimLocal(s); }
+std::string trimText(const std::string& s) {
+  size_t b = 0, e = s.size();
+  while (b < e && std::isspace(static_cast<unsigned char>(s[b]))) ++b;
+  while (e > b && std::isspace(static_cast<unsigned char>(s[e - 1]))) --e;
+  return s.substr(b, e - b);
+}
 
 const std::vector<ParamEntry>& paramTable() {
   static const std::vector<ParamEntry> entries = [] {

@@ -83,6 +83,7 @@ std::string paramTableMarkdown() {
 
 std::vector<ParamInfo> listPipelineParams(const PipelineParams& params) {
   std::vector<ParamInfo> out;
+  const PipelineParams defaults;
   for (const std::string& section : pipelineParamSections()) {
     for (const ParamEntry& e : paramTable()) {
       if (e.section != section) continue;
@@ -92,7 +93,7 @@ std::vector<ParamInfo> listPipelineParams(const PipelineParams& params) {
       info.field = e.field;
       info.type = e.type;
       info.value = e.get(params);
-      info.default_value = e.get(PipelineParams{});
+      info.default_value = e.get(defaults);
       info.choices = e.choices;
       info.origin = e.origin;
       info.bounds = e.bounds;
