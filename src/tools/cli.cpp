@@ -344,7 +344,6 @@ void writePriorStats(JsonWriter& j, const endo_stereo::TemporalPriorStats& prior
   j.beginObject();
   j.key("narrowed_pixels").value(prior.narrowed_pixels);
   j.key("full_range_pixels").value(prior.full_range_pixels);
-  j.key("fallback_pixels").value(prior.fallback_pixels);
   j.key("deferred_pixels").value(prior.deferred_pixels);
   j.key("edge_zone_pixels").value(prior.edge_zone_pixels);
   j.key("hits").value(prior.prior_hits);

@@ -357,7 +357,7 @@ struct Totals {
   // --stages: priors and temporal update, prepare, search, edge, filters, the rest, total.
   Timing stage_ms[7];
   Score s_with, s_without, s_sgbm, s_fused, s_with_narrowed, s_with_full;
-  int64_t narrowed = 0, hits = 0, fallbacks = 0, deferred = 0, searched = 0;
+  int64_t narrowed = 0, hits = 0, deferred = 0, searched = 0;
   double width_sum = 0;
   int width_frames = 0;
   int64_t breakdown_with[4] = {0, 0, 0, 0}, breakdown_without[4] = {0, 0, 0, 0};
@@ -449,7 +449,7 @@ std::string resultsJson(const Options& o, const endo_stereo::PipelineParams& pp,
       "  \"bad_pixels_without_priors\": %lld, \"output_pixels_without_priors\": %lld,\n"
       "  \"bad2_fused\": %.5f, \"density_fused\": %.4f,\n"
       "  \"bad2_sgbm\": %.5f, \"density_sgbm\": %.4f,\n"
-      "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f, \"prior_fallback_share\": %.5f,\n"
+      "  \"prior_narrowed_share\": %.4f, \"prior_hit_share\": %.4f,\n"
       "  \"prior_deferred_share\": %.4f,\n"
       "  \"mean_narrowed_width_px\": %.2f,\n"
       "  \"coverage_with_priors\": {\"central_within_10\": %.4f, \"overall_within_10\": %.4f, \"central_never\": %.4f},\n"
@@ -465,7 +465,6 @@ std::string resultsJson(const Options& o, const endo_stereo::PipelineParams& pp,
       t.s_fused.bad2(), t.s_fused.density(), t.s_sgbm.bad2(), t.s_sgbm.density(),
       t.searched ? double(t.narrowed) / t.searched : 0.0,
       t.narrowed ? double(t.hits) / t.narrowed : 0.0,
-      t.searched ? double(t.fallbacks) / t.searched : 0.0,
       t.searched ? double(t.deferred) / t.searched : 0.0,
       t.width_frames ? t.width_sum / t.width_frames : 0.0, cov_with.central_share,
       cov_with.overall_share, cov_with.central_never, cov_without.central_share,
@@ -638,7 +637,6 @@ class Comparison {
     const endo_stereo::TemporalPriorStats& ps = out_with_.prior_stats;
     t_.narrowed += ps.narrowed_pixels;
     t_.hits += ps.prior_hits;
-    t_.fallbacks += ps.fallback_pixels;
     t_.deferred += ps.deferred_pixels;
     t_.searched += int64_t(pixels);
     t_.width_sum += ps.mean_narrowed_width_px;

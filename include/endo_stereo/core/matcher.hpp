@@ -61,7 +61,8 @@ struct MatcherParams {
   /// exact in float). Widths tried: min, min+step, ... <= max (at most 16 of them).
   int window_max_px = 30;
   /// Structure threshold: stdev of the 3x3 Laplacian over the window, intensities 0..255. >= 0.
-  double gamma_min = 0.5;
+  /// Default 2.0 (paper: 0.5), chosen on surgical video (docs/decisions/structure-threshold.md).
+  double gamma_min = 2.0;
   /// Least NCC gap between the best and the second-highest peak, [0, 2].
   double delta_min = 0.1;
   /// Left-right consistency tolerance |d_LR + d_RL| < epsilon, px, > 0. Compared on the integer

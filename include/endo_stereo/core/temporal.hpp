@@ -14,8 +14,9 @@
  *   so its output is exactly a full search's;
  * - a pixel without a prior searches the full range in one frame of full_range_period_frames (row
  *   stripes take turns), so no pixel goes longer than that without a search;
- * - a pixel whose narrowed search keeps failing falls back to the full range; when the share of
- *   narrowed searches that succeed drops to a fraction of the previous frame's (a cut), all
+ * - a failed narrowed search does not refresh a prior, so a pixel whose narrowed search keeps
+ *   failing is back to the full range once its prior is max_prior_age_frames old; when the share
+ *   of narrowed searches that succeed drops to a fraction of the previous frame's (a cut), all
  *   priors are dropped and the frame can be matched again;
  * - all temporal state is forgotten when time goes back (a looping bag), after a long gap, or when
  *   the image size, the disparity range or the calibration changes.
@@ -73,21 +74,19 @@ struct TemporalParams {
   /// prior_neighbourhood_px).
   int prior_edge_zone_px = 16;
   /// A valid disparity measured at most this many frames ago is a prior (1 = previous frame only).
-  /// In [1, 1000].
-  int max_prior_age_frames = 3;
-  /// After this many consecutive frames in which a pixel searched a narrowed range and got no
-  /// valid disparity, it searches the full range until it gets one again. In [1, 1000].
-  int max_prior_failures = 2;
-  /// A pixel without a usable prior (none valid within max_prior_age_frames in its neighbourhood,
-  /// or dropped after max_prior_failures) searches the full range in one frame of this many: each
-  /// frame, one in every full_range_period_frames stripes of kFullRangeStripeRows rows takes its
-  /// turn; elsewhere such pixels are not searched (matcher code "unsearched"), keep whatever prior
-  /// they had (it ages) and count no failure. 1 = every frame
-  /// (docs/method.md section 4 to the letter). Most pixels without a prior fail again (the
-  /// textureless instrument, the band at the left border, wet highlights), and a failure at the
-  /// full range runs every window size: on the surgical sequence 4 cuts 22% of the matcher's
-  /// instructions per frame with priors, for -0.26 points of density and 97.9% instead of 98.2% of
-  /// central pixels updated within 10 frames (docs/temporal_results.md). In [1, 1000].
+  /// A narrowed search that finds nothing keeps the prior without refreshing it, so this also
+  /// bounds how many frames in a row a failing prior is tried before the pixel is back to the
+  /// full range. In [1, 1000].
+  int max_prior_age_frames = 10;
+  /// A pixel without a usable prior (none valid within max_prior_age_frames in its neighbourhood)
+  /// searches the full range in one frame of this many: each frame, one in every
+  /// full_range_period_frames stripes of kFullRangeStripeRows rows takes its turn; elsewhere such
+  /// pixels are not searched (matcher code "unsearched") and keep whatever prior they had (it
+  /// ages). 1 = every frame (docs/method.md section 4 to the letter). Most pixels without a prior
+  /// fail again (the textureless instrument, the band at the left border, wet highlights), and a
+  /// failure at the full range runs every window size: on the surgical sequence 4 cuts 22% of the
+  /// matcher's instructions per frame with priors, for -0.26 points of density and 97.9% instead of
+  /// 98.2% of central pixels updated within 10 frames (docs/temporal_results.md). In [1, 1000].
   int full_range_period_frames = 4;
   /// Same-frame fallback in the narrowed range: a pixel whose narrowed search finds nothing with
   /// the first window goes on with the larger ones (up to matcher.window_max_px) in the same
@@ -161,7 +160,6 @@ struct TemporalPriorStats {
   int64_t narrowed_pixels = 0;    ///< pixels given a range narrower than the full one
   int64_t full_range_pixels = 0;  ///< pixels searching the full range this frame (no usable
                                   ///< prior, or its stripe's turn)
-  int64_t fallback_pixels = 0;    ///< had a prior but it kept failing (full range or deferred)
   int64_t deferred_pixels = 0;    ///< not searched this frame: full range, not their stripe's turn
                                   ///< (full_range_period_frames); not in full_range_pixels
   int64_t edge_zone_pixels = 0;   ///< narrowed pixels given the span of a nearby depth edge
@@ -174,14 +172,12 @@ struct TemporalPriorStats {
 /**
  * Search-range priors from the previous frames' valid disparities (docs/method.md section 4).
  *
- * Per pixel it keeps the most recent valid disparity, its age in frames and a count of
- * consecutive failed narrowed searches. buildRange() gives pixel p the range
- * [floor(min_N(p) - r), ceil(max_N(p) + r)], where min_N / max_N are the extreme priors within
- * prior_neighbourhood_px of p (priors no older than max_prior_age_frames, of pixels that have not
- * failed max_prior_failures times in a row), clamped to the full range. Near a prior depth edge
- * (within prior_edge_zone_px) the span of both sides is searched instead. Pixels with no such
- * prior search the full range in one frame of full_range_period_frames (their row stripe's turn)
- * and are deferred in the others.
+ * Per pixel it keeps the most recent valid disparity and its age in frames. buildRange() gives
+ * pixel p the range [floor(min_N(p) - r), ceil(max_N(p) + r)], where min_N / max_N are the
+ * extreme priors within prior_neighbourhood_px of p (priors no older than max_prior_age_frames),
+ * clamped to the full range. Near a prior depth edge (within prior_edge_zone_px) the span of both
+ * sides is searched instead. Pixels with no such prior search the full range in one frame of
+ * full_range_period_frames (their row stripe's turn) and are deferred in the others.
  */
 class TemporalPrior {
  public:
@@ -239,7 +235,6 @@ class TemporalPrior {
   int min_disparity_ = 0, max_disparity_ = -1;
   cv::Mat last_disparity_;  // CV_32FC1
   cv::Mat age_;             // CV_16UC1
-  cv::Mat failures_;        // CV_8UC1 consecutive failed narrowed searches
   cv::Mat narrowed_;        // CV_8UC1 1 where the last built range was narrowed, 2 deferred
   int64_t frame_count_ = 0; // update() calls since the last reset (selects the stripes' turn)
   double reference_hit_share_ = -1.0;  // see referenceHitShare()

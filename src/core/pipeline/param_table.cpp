@@ -224,7 +224,7 @@ void addMatcher(std::vector<ParamEntry>& t) {
        "[window_min_px, 32], at most 16 sizes"});
   add("gamma_min", &M::gamma_min,
       {kPaper, atLeast(0), "structure criterion: least stdev of the 3x3 Laplacian in the window "
-                           "(grey levels 0..255)"});
+                           "(grey levels 0..255; paper: 0.5)"});
   add("delta_min", &M::delta_min,
       {kPaper, in(0, 2), "discrimination criterion: least NCC gap between the best and the second "
                          "peak; the main knob between density and error"});
@@ -394,10 +394,8 @@ void addTemporal(std::vector<ParamEntry>& t) {
       {kOurs, in(0, 64), "near a depth edge in the priors (this many px) the range spans both "
                          "sides (0 = off)"});
   add("max_prior_age_frames", &T::max_prior_age_frames,
-      {kPaper, in(1, 1000), "a disparity measured up to this many frames ago is a prior "
-                            "(paper: 1)"});
-  add("max_prior_failures", &T::max_prior_failures,
-      {kOurs, in(1, 1000), "after this many failed narrowed searches in a row, the full range"});
+      {kPaper, in(1, 1000), "a disparity measured up to this many frames ago is a prior; a "
+                            "failed narrowed search does not refresh it (paper: 1)"});
   add("full_range_period_frames", &T::full_range_period_frames,
       {kOurs, in(1, 1000), "pixels without a prior search the full range one frame in this many "
                            "(row stripes take turns; paper: 1)"});

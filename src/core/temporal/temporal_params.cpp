@@ -19,8 +19,6 @@ std::string TemporalParams::validate() const {
     return rangeMessage("prior_edge_zone_px", "[0, 64]", prior_edge_zone_px);
   if (max_prior_age_frames < 1 || max_prior_age_frames > 1000)
     return rangeMessage("max_prior_age_frames", "[1, 1000]", max_prior_age_frames);
-  if (max_prior_failures < 1 || max_prior_failures > 1000)
-    return rangeMessage("max_prior_failures", "[1, 1000]", max_prior_failures);
   if (full_range_period_frames < 1 || full_range_period_frames > 1000)
     return rangeMessage("full_range_period_frames", "[1, 1000]", full_range_period_frames);
   if (!(min_prior_hit_share >= 0.0 && min_prior_hit_share <= 1.0))

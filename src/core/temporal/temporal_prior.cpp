@@ -51,12 +51,11 @@ inline int ceilToInt(float x) {
 }
 
 // The per-pixel state of a new stream: no prior anywhere.
-void startState(cv::Size size, cv::Mat& last_disparity, cv::Mat& age, cv::Mat& failures) {
+void startState(cv::Size size, cv::Mat& last_disparity, cv::Mat& age) {
   last_disparity.create(size, CV_32FC1);
   last_disparity.setTo(std::numeric_limits<float>::quiet_NaN());
   age.create(size, CV_16UC1);
   age.setTo(kAgeNone);
-  failures = cv::Mat::zeros(size, CV_8UC1);
 }
 
 // What the steps of TemporalPrior::buildRange share: the prior state (read only), the images
@@ -64,7 +63,6 @@ void startState(cv::Size size, cv::Mat& last_disparity, cv::Mat& age, cv::Mat& f
 struct RangeBuild {
   const cv::Mat& last_disparity;  // CV_32FC1, NaN = none
   const cv::Mat& age;             // CV_16UC1
-  const cv::Mat& failures;        // CV_8UC1
   // CV_32FC1: the usable priors (sentinels elsewhere), then spread over the neighbourhood.
   cv::Mat& lo_f;
   cv::Mat& hi_f;
@@ -73,10 +71,9 @@ struct RangeBuild {
   cv::Mat& hi_e;
   cv::Mat& narrowed;  // CV_8UC1: 1 narrowed, 2 deferred, 0 full range
   cv::Size size;
-  cv::Size blocks;   // the block grid of the edge zone
-  bool edge_zone;    // prior_edge_zone_px > prior_neighbourhood_px
-  int max_age;       // max_prior_age_frames
-  int max_failures;  // max_prior_failures
+  cv::Size blocks;  // the block grid of the edge zone
+  bool edge_zone;   // prior_edge_zone_px > prior_neighbourhood_px
+  int max_age;      // max_prior_age_frames
 };
 
 cv::Size edgeBlockGrid(cv::Size size) {
@@ -94,31 +91,25 @@ void allocateScratch(const RangeBuild& b) {
   }
 }
 
-// A stripe's rows: a pixel's prior is usable when it is finite, younger than max_age frames and
-// has not failed max_failures times in a row; lo_f / hi_f get it, the sentinels elsewhere.
-// c[0] counts the usable priors, c[1] the fresh ones dropped for failing.
-void selectUsablePriors(const RangeBuild& b, int y_begin, int y_end, std::array<int64_t, 2>& c) {
+// A stripe's rows: a pixel's prior is usable when it is finite and younger than max_age frames
+// (a failed search does not refresh it, so the age alone bounds how long a failing prior is
+// tried); lo_f / hi_f get it, the sentinels elsewhere. c[0] counts the usable priors.
+void selectUsablePriors(const RangeBuild& b, int y_begin, int y_end, std::array<int64_t, 1>& c) {
   const int width = b.size.width;
   const int max_age = b.max_age;
-  const int max_failures = b.max_failures;
   for (int y = y_begin; y < y_end; ++y) {
     const float* d = b.last_disparity.ptr<float>(y);
     const uint16_t* age = b.age.ptr<uint16_t>(y);
-    const uint8_t* fail = b.failures.ptr<uint8_t>(y);
     float* lo = b.lo_f.ptr<float>(y);
     float* hi = b.hi_f.ptr<float>(y);
-    int row_usable = 0, row_fresh = 0;
+    int row_usable = 0;
     for (int x = 0; x < width; ++x) {
-      const bool fresh = finite(d[x]) & (int(age[x]) < max_age);
-      const bool use = fresh & (int(fail[x]) < max_failures);
+      const bool use = finite(d[x]) & (int(age[x]) < max_age);
       lo[x] = use ? d[x] : kNoPriorLo;
       hi[x] = use ? d[x] : kNoPriorHi;
       row_usable += use;
-      row_fresh += fresh;
     }
     c[0] += row_usable;
-    // A pixel with a fresh prior that was dropped for failing: it falls back.
-    c[1] += row_fresh - row_usable;
   }
 }
 
@@ -165,12 +156,12 @@ void blockExtremes(const RangeBuild& b, int y_begin, int y_end) {
 }
 
 // First pass over the image: the usable priors and, with an edge zone, their block grid.
-// @return {usable priors, fresh priors dropped for failing (fallback)}.
-std::array<int64_t, 2> firstPass(const RangeBuild& b) {
-  return forRowStripes<2>(b.size.height, [&](int y_begin, int y_end, std::array<int64_t, 2>& c) {
+// @return the number of usable priors.
+int64_t firstPass(const RangeBuild& b) {
+  return forRowStripes<1>(b.size.height, [&](int y_begin, int y_end, std::array<int64_t, 1>& c) {
     selectUsablePriors(b, y_begin, y_end, c);
     if (b.edge_zone) blockExtremes(b, y_begin, y_end);
-  });
+  })[0];
 }
 
 // No usable prior anywhere: every pixel searches the full range (range cleared).
@@ -444,7 +435,6 @@ void TemporalPrior::reset() {
   max_disparity_ = -1;
   last_disparity_.release();
   age_.release();
-  failures_.release();
   narrowed_.release();
   frame_count_ = 0;
   reference_hit_share_ = -1.0;
@@ -461,17 +451,14 @@ bool TemporalPrior::buildRange(cv::Size size, int min_disparity, int max_dispari
     size_ = size;
     min_disparity_ = min_disparity;
     max_disparity_ = max_disparity;
-    startState(size, last_disparity_, age_, failures_);
+    startState(size, last_disparity_, age_);
   }
   const bool edge_zone = params_.prior_edge_zone_px > params_.prior_neighbourhood_px;
-  const int max_age = params_.max_prior_age_frames, max_failures = params_.max_prior_failures;
-  const RangeBuild b{last_disparity_, age_,    failures_,   lo_f_, hi_f_,
-                     lo_e_,           hi_e_,   narrowed_,   size,  edgeBlockGrid(size),
-                     edge_zone,       max_age, max_failures};
+  const int max_age = params_.max_prior_age_frames;
+  const RangeBuild b{last_disparity_,     age_,      lo_f_,  hi_f_, lo_e_, hi_e_, narrowed_, size,
+                     edgeBlockGrid(size), edge_zone, max_age};
   allocateScratch(b);
-  const std::array<int64_t, 2> pass1 = firstPass(b);
-  stats_.fallback_pixels = pass1[1];
-  if (pass1[0] == 0) {
+  if (firstPass(b) == 0) {
     searchFullRangeEverywhere(b, range, stats_);
     return false;
   }
@@ -487,7 +474,7 @@ void TemporalPrior::update(const cv::Mat& disparity) {
   if (last_disparity_.empty()) {
     // update() without a buildRange(): start the state at this size, full range unknown.
     size_ = disparity.size();
-    startState(size_, last_disparity_, age_, failures_);
+    startState(size_, last_disparity_, age_);
   }
   if (disparity.size() != size_) {
     throw std::invalid_argument("TemporalPrior::update: disparity size differs from the range's");
@@ -501,7 +488,6 @@ void TemporalPrior::update(const cv::Mat& disparity) {
           const float* in = disparity.ptr<float>(y);
           float* d = last_disparity_.ptr<float>(y);
           uint16_t* age = age_.ptr<uint16_t>(y);
-          uint8_t* fail = failures_.ptr<uint8_t>(y);
           // The narrowed flags are consumed here and cleared in the same pass.
           uint8_t* narrowed = have_narrowed ? narrowed_.ptr<uint8_t>(y) : zero_row_.data();
           int row_hits = 0, row_misses = 0;
@@ -523,13 +509,9 @@ void TemporalPrior::update(const cv::Mat& disparity) {
               const cv::v_float32x4 kept1 = cv::v_select(nar1, cv::v_load(d + x + 4), v_nan);
               cv::v_store(d + x, cv::v_select(ok0, in0, kept0));
               cv::v_store(d + x + 4, cv::v_select(ok1, in1, kept1));
-              // Saturating adds: kAgeNone + 1 stays kAgeNone, 255 failures + 1 stay 255 (v_pack).
+              // Saturating add: kAgeNone + 1 stays kAgeNone.
               const cv::v_uint16x8 aged = cv::v_select(keep, cv::v_load(age + x) + v_one, v_none);
               cv::v_store(age + x, cv::v_select(ok, v_zero, aged));
-              const cv::v_uint16x8 f = cv::v_load_expand(fail + x);
-              const cv::v_uint16x8 failed =
-                  cv::v_select(ok, v_zero, cv::v_select(nar, f + v_one, f));
-              cv::v_store_low(fail + x, cv::v_pack(failed, failed));
               cv::v_store_low(narrowed + x, cv::v_setzero_u8());
               row_hits += countMask(ok & nar);
               row_misses += countMask(~ok & nar);
@@ -542,14 +524,12 @@ void TemporalPrior::update(const cv::Mat& disparity) {
             const bool keep = was_narrowed | (narrowed[x] == 2);
             // Invalid after a full-range search: whatever the prior said is not confirmed, so it is
             // dropped (a wrong prior cannot outlive a full-range search). Invalid after a narrowed
-            // search only: the prior ages and counts a failure. Not searched (deferred): the prior
-            // ages.
+            // search, or not searched (deferred): the prior ages, and once max_prior_age_frames
+            // old it is no longer used.
             const float kept = keep ? d[x] : nan;
             const uint16_t aged = keep ? saturatingIncrement(age[x]) : kAgeNone;
-            const uint8_t failed = was_narrowed ? uint8_t(fail[x] + (fail[x] < 255)) : fail[x];
             d[x] = valid ? in[x] : kept;
             age[x] = valid ? uint16_t(0) : aged;
-            fail[x] = valid ? uint8_t(0) : failed;
             row_hits += valid & was_narrowed;
             row_misses += !valid & was_narrowed;
             narrowed[x] = 0;
@@ -622,7 +602,6 @@ void TemporalPrior::dropAll() {
   if (!last_disparity_.empty()) {
     last_disparity_.setTo(std::numeric_limits<float>::quiet_NaN());
     age_.setTo(kAgeNone);
-    failures_.setTo(0);
   }
   if (!narrowed_.empty()) narrowed_.setTo(0);
   stats_.scene_change = true;
