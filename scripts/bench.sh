@@ -12,6 +12,8 @@
 #        stage at 1 thread beside the runs above (OpenCV's default thread count, one per CPU);
 #      - pairs with ground truth (endo_stereo_eval --peers): real/scared_ds1_kf2_gt (search 0..95)
 #        and the Middlebury scenes;
+#      - the depth-edge filter's trade-off (scripts/edge_tradeoff.py): the in-vivo video and the
+#        pairs with ground truth again for each setting of its thresholds, docs/edge_tradeoff.png;
 #   2. generated: a 60-frame surgical sequence from endo_stereo_generate (endo_stereo_evaluate);
 #      endo_stereo_bench (Middlebury and synthetic scenes beside BM, SGBM and OpenCV's
 #      quasi-dense matcher, the 960x540 timing case, peak memory, the precision-density sweep)
@@ -89,6 +91,8 @@ if [ -d "$REAL_REL" ]; then
     --threads 1 --quiet --json "$OUT/real960_moving_t1.json"
   record groundtruth "$REL_BIN/endo_stereo_eval" --peers \
     --gt-pair "$REAL_REL/scared_ds1_kf2_gt" --gt-range 0:95 --json "$OUT/groundtruth.json"
+  record edge_tradeoff /usr/bin/python3 scripts/edge_tradeoff.py --bin "$REL_BIN" --real "$REAL_REL" \
+    --out "$OUT" --png docs/edge_tradeoff.png
 else
   echo "bench.sh: NOTE: $REAL_REL is absent: no real-recording tables in this run" >&2
   if [ -d ../shared/data/middlebury ]; then

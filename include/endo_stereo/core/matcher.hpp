@@ -101,9 +101,9 @@ struct MatcherParams {
   /// The same test for accepted disparities above the pixel's own (it may carry the farther
   /// surface's disparity into the nearer one's edge). px, >= 0; 0 = edge_disparity_jump_px.
   double edge_disparity_jump_above_px = 6.0;
-  /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16]. 7 with the
-  /// 9 px first window (a wider window fattens further).
-  int edge_margin_px = 7;
+  /// How far beyond its accepting window a pixel's edge test looks, px, in [0, 16]. 6 with the
+  /// 9 px first window (docs/decisions/edge-thresholds-on-real-video.md).
+  int edge_margin_px = 6;
   /// Second chance for pixels the edge test flags (ours; 0 = off: every flagged pixel is
   /// rejected). Competitors are the disparities measured on the other side of the jump (those of
   /// the neighbours that triggered the test, rounded, +-1 px). A flagged pixel is kept when EVERY
