@@ -113,14 +113,14 @@ def table(points, peers):
         name = "**%s**" % p["label"] if "default" in p["label"] else p["label"]
         print("| %s | %s | %s | %s | %s | %s at %s | %s | %s |" % (
             name, pct(p["density"]), pct(p["jumps"], 2), pct(p["flicker"], 2), pct(p["coverage"]),
-            pct(p.get("scared_bad2"), 2), pct(p.get("scared_density")),
+            pct(p.get("scared_bad2"), 2), pct(p.get("scared_density"), 2),
             ("%s (%s)" % (pct(p["middlebury_worst_bad2"], 2), p["middlebury_worst"]))
             if "middlebury_worst_bad2" in p else "n/a", ", ".join(crossed) or "none"))
     for k, name in (("bm", "OpenCV BM"), ("sgbm", "OpenCV SGBM")):
         q = peers[k]
         print("| %s | %s | %s | %s | %s | %s at %s | %s | |" % (
             name, pct(q["density"]), pct(q["jumps"], 2), pct(q["flicker"], 2), pct(q["coverage"]),
-            pct(q.get("scared_bad2"), 2), pct(q.get("scared_density")),
+            pct(q.get("scared_bad2"), 2), pct(q.get("scared_density"), 2),
             ("%s (%s)" % (pct(q["middlebury_worst_bad2"], 2), q["middlebury_worst"]))
             if "middlebury_worst_bad2" in q else "n/a"))
 
