@@ -13,8 +13,7 @@
  * against fattening at depth edges (a pixel whose accepting window straddles a disparity jump is
  * flagged, edge_*; it is kept only when every small window holding it confirms its disparity
  * against the neighbours' disparities, edge_verify_*, else rejected), a least NCC for the best
- * peak (min_ncc, stronger for narrowed per-pixel ranges), only the first window for narrowed
- * per-pixel ranges (window_max_narrowed_px), epsilon 1.5 px. Measurements:
+ * peak (min_ncc, stronger for narrowed per-pixel ranges), epsilon 1.5 px. Measurements:
  * docs/matcher_design.md / BENCHMARKS.md.
  *
  * A pixel searches the disparities of its range for which both windows lie inside the images (the
@@ -78,14 +77,6 @@ struct MatcherParams {
   /// range has lost the competitors outside it; when it misses the true disparity its profile
   /// holds only noise peaks. [-1, 1].
   double min_ncc_narrowed = 0.7;
-  /// Largest window width tried for a pixel whose per-pixel search range is narrowed (as for
-  /// min_ncc_narrowed), px, in [0, 32]; 0 = window_max_px; the first window (window_min_px) is
-  /// always tried (ours). On the surgical frame with +-4 px around the truth, the narrowed pixels
-  /// accepted with windows of 11 px and more had a bad2 of 4-10% against 0.04% at 7 px
-  /// (docs/matcher_design.md): a larger window fattens across depth edges, and a narrowed range
-  /// has lost the competitors that would expose a wrong peak. The temporal priors send a pixel
-  /// that keeps failing back to the full range, where every window is tried.
-  int window_max_narrowed_px = 9;
   /// Refine accepted disparities with a parabola through the NCC peak.
   bool subpixel = true;
   /// Worker threads, 0..kMaxNumThreads; 0 = OpenCV's default. When > 0, cv::setNumThreads() is

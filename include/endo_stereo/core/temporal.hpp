@@ -8,8 +8,8 @@
  * with a recent valid disparity searches only a narrow range around it. Ours on top of the paper:
  * - the narrowed range of a pixel spans the priors of a small neighbourhood (image motion of a few
  *   pixels), and near a depth edge in the priors the span of both sides (a moving instrument);
- * - a narrowed search that finds nothing with the first window goes on with the larger ones in the
- *   same frame (fallback_larger_windows; TemporalMatcher, temporal_matching.hpp);
+ * - a narrowed range is searched with every window size, as the full range is (the window grows
+ *   for a pixel that fails, docs/method.md section 5.3);
  * - a frame without usable priors (the first one, after a reset or a cut) searches the full range,
  *   so its output is exactly a full search's;
  * - a pixel without a prior searches the full range in one frame of full_range_period_frames (row
@@ -88,14 +88,6 @@ struct TemporalParams {
   /// matcher's instructions per frame with priors, for -0.26 points of density and 97.9% instead of
   /// 98.2% of central pixels updated within 10 frames (docs/temporal_results.md). In [1, 1000].
   int full_range_period_frames = 4;
-  /// Same-frame fallback in the narrowed range: a pixel whose narrowed search finds nothing with
-  /// the first window goes on with the larger ones (up to matcher.window_max_px) in the same
-  /// matcher pass, as a full-range search would; TemporalMatcher then lifts
-  /// matcher.window_max_narrowed_px for the pass. On the in-vivo video every narrowed miss that a
-  /// full search accepts is accepted inside the narrowed range, with a window wider than the first
-  /// (docs/temporal_results.md), so this is what brings the priors' density up to the full
-  /// search's. false = the matcher's cap applies.
-  bool fallback_larger_windows = true;
   /// Scene change: when the share of a frame's narrowed searches that find a valid disparity
   /// falls below this fraction of the previous frame's share, the priors are dropped at once (a
   /// cut, a jump of the endoscope): TemporalTracker::rejectPriors() then asks for the frame to be

@@ -6,14 +6,12 @@
  * Per frame, between TemporalTracker::beginFrame() and endFrame():
  * 1. no usable prior (the first frame, after a reset or a scene change): the full range, so the
  *    frame's output is exactly a full search's;
- * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred); with
- *    TemporalParams::fallback_larger_windows a narrowed search that finds nothing with the first
- *    window goes on with the larger ones (MatcherParams::window_max_narrowed_px lifted);
+ * 2. the narrowed pass: every pixel its range (narrowed around a prior, full, or deferred), every
+ *    window size in each (a pixel that fails with one window goes on with the next);
  * 3. a scene change (TemporalTracker::rejectPriors()): the frame again over the full range;
  * 4. the post-filter (isolated outliers, small holes) once, on the frame's map, exactly as
  *    RobustMatcher::compute() runs it after its single pass.
- * With priors off, or without larger windows, the result equals a single RobustMatcher::compute()
- * with the same range.
+ * With priors off the result equals a single RobustMatcher::compute() with the same range.
  *
  * Use (what Pipeline does per frame):
  * @code
@@ -67,14 +65,12 @@ class TemporalMatcher {
   struct PassTimes {
     double match_ms = 0.0, prepare_ms = 0.0, edge_ms = 0.0;
   };
-  void useLargerWindows(bool on);
   void matchPass(const cv::Mat& left, const cv::Mat& right, const SearchRange* range,
                  MatchResult& out, PassTimes& times);
 
   MatcherParams matcher_params_;
   PostFilterParams filter_params_;
   RobustMatcher matcher_;  // the passes only match: edge test and post-filter run on the result
-  bool larger_windows_ = false;  // matcher_ tries every window size in narrowed ranges
   cv::Mat window_idx_;   // the merged map's accepting window indices (depth-edge measure)
   cv::Mat edge_tmp_[5];  // the depth-edge measure's scratch
 };

@@ -32,9 +32,6 @@ std::string MatcherParams::validate() const {
         << " must be in [window_min_px = " << window_min_px << ", 32]";
   } else if ((window_max_px - window_min_px) / window_step_px + 1 > 16) {
     msg << "matcher.window_max_px = " << window_max_px << " allows more than 16 window sizes";
-  } else if (window_max_narrowed_px < 0 || window_max_narrowed_px > 32) {
-    msg << "matcher.window_max_narrowed_px = " << window_max_narrowed_px
-        << " must be in [0, 32] (0 = window_max_px)";
   } else if (!(gamma_min >= 0.0) || !std::isfinite(gamma_min)) {
     msg << "matcher.gamma_min = " << gamma_min << " must be finite and >= 0";
   } else if (!(delta_min >= 0.0 && delta_min <= 2.0)) {

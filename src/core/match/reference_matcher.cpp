@@ -251,11 +251,6 @@ void matchWindow(const Reference& ref, int level, int w, cv::Mat& accepted, Matc
       }
       const bool narrowed = ref.req.lo->at<int>(y, x) > p.min_disparity ||
                             ref.req.hi->at<int>(y, x) < p.max_disparity;
-      // Ours: a narrowed pixel is tried up to window_max_narrowed_px only (the first window
-      // always); it keeps the code of its last window.
-      if (narrowed && level > 0 && p.window_max_narrowed_px > 0 && w > p.window_max_narrowed_px) {
-        continue;
-      }
       uint8_t& code = out.code.at<uint8_t>(y, x);
       code = matchPixel(ref, x, y, r, a, b, narrowed, accepted_code, &out.disparity.at<float>(y, x),
                         &out.confidence.at<float>(y, x));

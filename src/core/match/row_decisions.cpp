@@ -141,16 +141,11 @@ ES_KERNEL void denseRanges(int W, int r, const int* __restrict rlo, const int* _
 }
 
 /// The open pixels of a row at its first sparse window size, in column order into out (returns
-/// how many): columns of [x0, x1) with a requested range (lo <= hi), not accepted yet (st == 0)
-/// and, when capped (window_max_narrowed_px), the full range [dmin, dmax]. Eight columns at a
-/// time; a group without an open pixel is skipped (with priors most pixels are narrowed).
+/// how many): columns of [x0, x1) with a requested range (lo <= hi) and not accepted yet
+/// (st == 0). Eight columns at a time; a group without an open pixel is skipped.
 ES_KERNEL int openColumns(int x0, int x1, const int* __restrict rlo, const int* __restrict rhi,
-                          const uint8_t* __restrict st, bool capped, int dmin, int dmax,
-                          int* __restrict out) {
+                          const uint8_t* __restrict st, int* __restrict out) {
   using namespace simd;
-  const V8i vmin = {dmin, dmin, dmin, dmin, dmin, dmin, dmin, dmin};
-  const V8i vmax = {dmax, dmax, dmax, dmax, dmax, dmax, dmax, dmax};
-  const V8i vcap = capped ? V8i{-1, -1, -1, -1, -1, -1, -1, -1} : V8i{0, 0, 0, 0, 0, 0, 0, 0};
   int n = 0, x = x0;
   for (; x + 8 <= x1; x += 8) {
     V8i lo, hi;
@@ -158,7 +153,7 @@ ES_KERNEL int openColumns(int x0, int x1, const int* __restrict rlo, const int* 
     std::memcpy(&hi, rhi + x, sizeof(hi));
     const V8i sv = {st[x],     st[x + 1], st[x + 2], st[x + 3],
                     st[x + 4], st[x + 5], st[x + 6], st[x + 7]};
-    const V8i m = (lo <= hi) & (sv == 0) & (~vcap | ((lo <= vmin) & (hi >= vmax)));
+    const V8i m = (lo <= hi) & (sv == 0);
     if (!anyLane(m)) continue;
     for (int i = 0; i < 8; ++i) {
       out[n] = x + i;
@@ -167,8 +162,7 @@ ES_KERNEL int openColumns(int x0, int x1, const int* __restrict rlo, const int* 
   }
   for (; x < x1; ++x) {
     out[n] = x;
-    const bool full = (rlo[x] <= dmin) & (rhi[x] >= dmax);
-    n += (rlo[x] <= rhi[x]) & (st[x] == 0) & (full | !capped);
+    n += (rlo[x] <= rhi[x]) & (st[x] == 0);
   }
   return n;
 }
@@ -280,9 +274,6 @@ struct RowJob {
   const uint8_t* st;  // 1 = accepted with a smaller window
   uint8_t* code;
   int dmin, dmax;
-  // Above window_max_narrowed_px only pixels with the full range stay open (the first window
-  // is always tried; without per-pixel ranges no pixel is narrowed).
-  bool capped;
   float gmin, delta_min, min_ncc_full, min_ncc_narrow;
 
   /// A per-pixel range narrower than [dmin, dmax] (the test behind min_ncc_narrowed too).
@@ -310,8 +301,6 @@ RowJob::RowJob(const WindowLevel& level, int row, WorkerScratch& scratch)
       code(level.out->code.ptr<uint8_t>(row)),
       dmin(level.dmin),
       dmax(level.dmax),
-      capped(!level.uniform_ranges && level.level > 0 && level.mp->window_max_narrowed_px > 0 &&
-             level.w > level.mp->window_max_narrowed_px),
       gmin(static_cast<float>(level.mp->gamma_min)),
       delta_min(static_cast<float>(level.mp->delta_min)),
       min_ncc_full(static_cast<float>(level.mp->min_ncc)),
@@ -341,18 +330,17 @@ int countOpenPixels(const RowJob& j) {
   if ((*c.open_level)[j.y] == c.level - 1) {
     // Drop the pixels accepted with the smaller windows and those the larger window's border
     // excludes (it only grows).
-    const bool capped = j.capped;
     size_t kept = 0;
     for (const int x : open) {
       open[kept] = x;
-      kept += (st[x] == 0) & (x >= r) & (x < W - r) & (!capped | !j.narrowed(x));
+      kept += (st[x] == 0) & (x >= r) & (x < W - r);
     }
     open.resize(kept);
     (*c.open_level)[j.y] = c.level;
     return static_cast<int>(kept);
   }
   open.resize(W);
-  const int n_open = openColumns(r, W - r, rlo, rhi, st, j.capped, j.dmin, j.dmax, open.data());
+  const int n_open = openColumns(r, W - r, rlo, rhi, st, open.data());
   open.resize(n_open);
   return n_open;
 }
@@ -574,9 +562,8 @@ void matchRow(const WindowLevel& c, int y, WorkerScratch& s) {
   const RowJob j(c, y, s);
   const int n_open = countOpenPixels(j);
   // Dense when most of the row is open (the first window): every column's range and statistics
-  // are then needed and computed row-wide, and openness is tested row-wide too. The dense
-  // engines activate pixels row-wide, without the list: not with the cap.
-  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y] && !j.capped;
+  // are then needed and computed row-wide, and openness is tested row-wide too.
+  const bool dense = n_open > 0 && 2 * n_open >= (*c.n_req_rows)[y];
   if (!dense && c.level > 0) (*c.open_level)[y] = c.level;  // the list just built or filtered
   if (n_open == 0) return;
   prepareStatistics(j, dense);

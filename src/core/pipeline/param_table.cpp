@@ -234,8 +234,6 @@ void addMatcher(std::vector<ParamEntry>& t) {
       {kOurs, in(-1, 1), "least NCC of an accepted peak (-1 = off)"});
   add("min_ncc_narrowed", &M::min_ncc_narrowed,
       {kOurs, in(-1, 1), "the same for a pixel searched in a range narrowed by its priors"});
-  add("window_max_narrowed_px", &M::window_max_narrowed_px,
-      {kOurs, in(0, 32), "largest window tried in a narrowed range, px (0 = window_max_px)"});
   add("subpixel", &M::subpixel,
       {kOurs, kNoBounds, "parabola sub-pixel refinement of accepted disparities"});
   add("num_threads", &M::num_threads,
@@ -399,9 +397,6 @@ void addTemporal(std::vector<ParamEntry>& t) {
   add("full_range_period_frames", &T::full_range_period_frames,
       {kOurs, in(1, 1000), "pixels without a prior search the full range one frame in this many "
                            "(row stripes take turns; paper: 1)"});
-  add("fallback_larger_windows", &T::fallback_larger_windows,
-      {kOurs, kNoBounds, "a narrowed search that misses with the first window tries the larger "
-                         "ones in the same frame"});
   add("min_prior_hit_share", &T::min_prior_hit_share,
       {kOurs, in(0, 1), "scene change: drop all priors when the share of narrowed searches that "
                         "hit falls below this x the previous frame's (0 = off)"});

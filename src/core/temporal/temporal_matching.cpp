@@ -33,14 +33,6 @@ MatcherParams withoutEdgeTest(MatcherParams p) {
   return p;
 }
 
-// The passes' matcher: no depth-edge measure, and with TemporalParams::fallback_larger_windows
-// every window size in narrowed ranges too (MatcherParams::window_max_narrowed_px = 0).
-MatcherParams passParams(const MatcherParams& p, bool larger_windows) {
-  MatcherParams q = withoutEdgeTest(p);
-  if (larger_windows) q.window_max_narrowed_px = 0;
-  return q;
-}
-
 bool edgeTestOn(const MatcherParams& p) {
   return p.edge_disparity_jump_px > 0.0;
 }
@@ -81,7 +73,7 @@ TemporalMatcher::TemporalMatcher(const MatcherParams& matcher_params,
                                  const PostFilterParams& filter_params)
     : matcher_params_(matcher_params),
       filter_params_(filter_params),
-      matcher_(passParams(matcher_params, false), withoutPostFilter(filter_params)) {}
+      matcher_(withoutEdgeTest(matcher_params), withoutPostFilter(filter_params)) {}
 
 void TemporalMatcher::setParams(const MatcherParams& matcher_params,
                                 const PostFilterParams& filter_params) {
@@ -89,8 +81,7 @@ void TemporalMatcher::setParams(const MatcherParams& matcher_params,
   std::string err = matcher_params.validate();
   if (err.empty()) err = filter_params.validate();
   if (!err.empty()) throw std::invalid_argument(err);
-  matcher_.setParams(passParams(matcher_params, larger_windows_),
-                     withoutPostFilter(filter_params));
+  matcher_.setParams(withoutEdgeTest(matcher_params), withoutPostFilter(filter_params));
   matcher_params_ = matcher_params;
   filter_params_ = filter_params;
 }
@@ -115,13 +106,6 @@ void countAcceptedPerWindow(MatchResult& out) {
 }
 
 }  // namespace
-
-// Larger windows for narrowed misses (TemporalParams::fallback_larger_windows).
-void TemporalMatcher::useLargerWindows(bool on) {
-  if (on == larger_windows_) return;
-  matcher_.setParams(passParams(matcher_params_, on), withoutPostFilter(filter_params_));
-  larger_windows_ = on;
-}
 
 // One matching pass over @p range (nullptr: the full range), then the depth-edge measure on its
 // map, as RobustMatcher::compute() runs it after matching.
@@ -155,8 +139,6 @@ void TemporalMatcher::compute(const cv::Mat& left, const cv::Mat& right,
                               TemporalTracker& temporal, const SearchRange* range,
                               MatchResult& out, TemporalMatchReport* report) {
   TemporalMatchReport r;
-  const TemporalParams& tp = temporal.params();
-  useLargerWindows(tp.enabled && tp.fallback_larger_windows);
   PassTimes times;
   // No usable prior (range == nullptr: the first frame, after a reset): the full range.
   matchPass(left, right, range, out, times);
