@@ -41,7 +41,7 @@ MIDDLEBURY = ("tsukuba", "venus", "teddy")
 # The targets of the dense-tissue requirement (README, status): flicker no higher than BM's,
 # raw jumps <= 3%, SCARED bad2 <= 0.3% at >= 92% density, Middlebury bad2 <= 2% on every scene,
 # coverage >= 97%, density >= SGBM's.
-JUMPS_MAX, SCARED_MAX, MIDDLEBURY_MAX, COVERAGE_MIN = 0.03, 0.003, 0.02, 0.97
+JUMPS_MAX, SCARED_MAX, SCARED_DENSITY_MIN, MIDDLEBURY_MAX, COVERAGE_MIN = 0.03, 0.003, 0.92, 0.02, 0.97
 
 
 def run(cmd):
@@ -95,6 +95,16 @@ def pct(v, d=1):
     return "n/a" if v is None else ("%." + str(d) + "f") % (100 * v)
 
 
+def row(name, q, crossed):
+    """One table row: the figures of q (a setting or a peer), then the bounds column."""
+    middlebury = ("%s (%s)" % (pct(q["middlebury_worst_bad2"], 2), q["middlebury_worst"])
+                  if "middlebury_worst_bad2" in q else "n/a")
+    print("| %s | %s | %s | %s | %s | %s at %s | %s |%s|" % (
+        name, pct(q["density"]), pct(q["jumps"], 2), pct(q["flicker"], 2), pct(q["coverage"]),
+        pct(q.get("scared_bad2"), 2), pct(q.get("scared_density"), 2), middlebury,
+        " %s " % crossed if crossed else " "))
+
+
 def table(points, peers):
     print("| setting | in-vivo density % | jumps > 2 px % | flicker % | central covered every 10"
           " frames % | SCARED bad2 % at density % | worst Middlebury bad2 % (scene) | bounds crossed |")
@@ -106,23 +116,14 @@ def table(points, peers):
             crossed.append("flicker")
         if p["jumps"] > JUMPS_MAX:
             crossed.append("jumps")
-        if p.get("scared_bad2", 0) > SCARED_MAX or p.get("scared_density", 1) < 0.92:
+        if p.get("scared_bad2", 0) > SCARED_MAX or p.get("scared_density", 1) < SCARED_DENSITY_MIN:
             crossed.append("SCARED")
         if p.get("middlebury_worst_bad2", 0) > MIDDLEBURY_MAX:
             crossed.append("Middlebury")
         name = "**%s**" % p["label"] if "default" in p["label"] else p["label"]
-        print("| %s | %s | %s | %s | %s | %s at %s | %s | %s |" % (
-            name, pct(p["density"]), pct(p["jumps"], 2), pct(p["flicker"], 2), pct(p["coverage"]),
-            pct(p.get("scared_bad2"), 2), pct(p.get("scared_density"), 2),
-            ("%s (%s)" % (pct(p["middlebury_worst_bad2"], 2), p["middlebury_worst"]))
-            if "middlebury_worst_bad2" in p else "n/a", ", ".join(crossed) or "none"))
+        row(name, p, ", ".join(crossed) or "none")
     for k, name in (("bm", "OpenCV BM"), ("sgbm", "OpenCV SGBM")):
-        q = peers[k]
-        print("| %s | %s | %s | %s | %s | %s at %s | %s | |" % (
-            name, pct(q["density"]), pct(q["jumps"], 2), pct(q["flicker"], 2), pct(q["coverage"]),
-            pct(q.get("scared_bad2"), 2), pct(q.get("scared_density"), 2),
-            ("%s (%s)" % (pct(q["middlebury_worst_bad2"], 2), q["middlebury_worst"]))
-            if "middlebury_worst_bad2" in q else "n/a"))
+        row(name, peers[k], "")
 
 
 def plot(points, peers, png):
